@@ -1,0 +1,64 @@
+"""Bracketed scalar root finding on a step's dense interpolant.
+
+diffrax locates events with an unbracketed Newton iteration started at the step's end
+(`_integrate.py`); on a high-order interpolant that can leave the step or fail to converge
+(one cause of the `Dopri8` event errors noted in DESIGN.md §4). Every root we look for is
+already bracketed by a sign change inside one step, so a bracketed method is both safe and
+fast: the Illinois variant of regula falsi converges superlinearly and never leaves the
+bracket.
+"""
+
+import jax
+import jax.lax as lax
+import jax.numpy as jnp
+
+
+def bracketed_root(fn, lo, hi, f_lo, f_hi, *, max_iter: int = 60):
+    """Locate the sign change of `fn` in `[lo, hi]`, given `f_lo > 0 >= f_hi`.
+
+    Returns `(lo, hi)` with `fn(lo) > 0 >= fn(hi)` and `hi - lo` a few ulps (or fewer than
+    `max_iter` iterations' worth of progress). `hi` is the first point at or past the sign
+    change. The result carries no derivative: callers apply one Newton step outside (the
+    implicit function theorem) when they need tangents.
+    """
+    lo, hi, f_lo, f_hi = (lax.stop_gradient(v) for v in (lo, hi, f_lo, f_hi))
+    eps = jnp.finfo(jnp.result_type(lo)).eps
+
+    def not_done(carry):
+        lo, hi, f_lo, f_hi, _, it = carry
+        width = hi - lo
+        return (it < max_iter) & (width > 4 * eps * jnp.maximum(jnp.abs(lo), jnp.abs(hi))) & (f_hi != 0)
+
+    def body(carry):
+        lo, hi, f_lo, f_hi, side, it = carry
+        # Secant point between the bracket ends; f_lo > 0 >= f_hi keeps the denominator
+        # non-zero. Fall back to bisection if round-off pushes it out of the open bracket.
+        denom = f_lo - f_hi
+        mid = hi - f_hi * (hi - lo) / jnp.where(denom > 0, denom, 1.0)
+        bisect = 0.5 * (lo + hi)
+        inside = (mid > lo) & (mid < hi)
+        # Every fourth iteration bisect, which bounds the worst case on flat functions.
+        mid = jnp.where(inside & (it % 4 != 3), mid, bisect)
+        f_mid = fn(mid)
+        positive = f_mid > 0
+        # Illinois: when the same end is replaced twice running, halve the other end's
+        # value so that the secant point moves across the root.
+        f_hi = jnp.where(positive & (side == 1), 0.5 * f_hi, f_hi)
+        f_lo = jnp.where(~positive & (side == -1), 0.5 * f_lo, f_lo)
+        lo, f_lo = jnp.where(positive, mid, lo), jnp.where(positive, f_mid, f_lo)
+        hi, f_hi = jnp.where(positive, hi, mid), jnp.where(positive, f_hi, f_mid)
+        side = jnp.where(positive, 1, -1)
+        return lo, hi, f_lo, f_hi, side, it + 1
+
+    init = (lo, hi, f_lo, f_hi, jnp.array(0), jnp.array(0))
+    lo, hi, *_ = lax.while_loop(not_done, body, init)
+    return lo, hi
+
+
+def safe_divide(num, den, ok):
+    """num / den where `ok`, else 0, with the double-`where` that keeps tangents finite."""
+    return jnp.where(ok, num / jnp.where(ok, den, 1.0), 0.0)
+
+
+def stop(x):
+    return jax.lax.stop_gradient(x)

@@ -1,0 +1,734 @@
+"""`simulate`: the jit-compiled impact loop.
+
+Design (and why it is not a loop of `diffeqsolve` calls with a `diffrax.Event`):
+
+- **One flat loop, one solver step per iteration.** Flights are integrated by Diffrax's
+  own solvers (`solver.step`), step-size controllers (`adapt_step_size`) and dense
+  interpolants, but the loop around them is ours. An impact does not end a `diffeqsolve`
+  and start another: it resets the state in place. Under `jax.vmap` this matters: nested
+  loops (impacts outside, steps inside) make every lane wait for the slowest lane's flight
+  at *every* impact; a flat loop only waits once, for the slowest lane overall.
+- **Events located exactly, never missed.** `_events.py` tests every accepted step for
+  crossings *and* in-step dips (diffrax #507), resolves several surfaces in time order
+  (not pytree order, #639), and guards restarts on a surface.
+- **The event state comes from a real step, not the interpolant.** When a contact is found
+  at s* (on the interpolant), the step is retaken from its start to s* ("landing step"),
+  then one Newton step s* ← s* − g/ġ corrects the time. The event state therefore has the
+  accuracy of the method, whatever its interpolant's order, and the Newton step carries
+  the implicit-function-theorem tangent of the event time, so `jax.jacfwd` through the
+  loop gives exactly the saltation-matrix sensitivities (DESIGN.md §4).
+- **A local clock.** Steps run in s = time since the last impact; the impact times are
+  accumulated in double-double (t_hi, t_lo). Long runs keep full resolution in every
+  flight, and event times do not drift with |t| (DESIGN.md §4, "large t").
+- **Backward time** (`t1 < t0`) is forward time for the reversed field −f(−·), with the
+  image surfaces Γ̃_i (gap Φ_i ∘ J_i⁻¹, met from either side) and the inverse jumps.
+"""
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import diffrax
+import equinox as eqx
+import equinox.internal as eqxi
+import jax
+import jax.lax as lax
+import jax.numpy as jnp
+import optimistix as optx
+
+from ._events import closed_piece, gap_floor, is_candidate, locate, step_ends
+from ._roots import safe_divide
+from ._scene import Scene, Surface
+from ._solution import Solution
+from ._status import ImpactKind, Status
+from ._validate import validate_inputs
+
+
+# --------------------------------------------------------------------------------------
+# Internal surfaces: the forward pieces, or their images in backward time.
+# --------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class _Piece:
+    """A surface as the loop sees it, in the loop's own (possibly reversed) time."""
+
+    gap: Callable  # gap(t, x, args): Φ_i, or Φ̃_i = Φ_i ∘ J_i⁻¹ in backward time
+    jump: Callable  # J_i, or J_i⁻¹
+    inside: Callable  # inside(t, x, args) -> (in closed piece, on boundary)
+    signs: tuple[int, ...]  # +1: impact on downward crossings; (+1, -1): either way
+    check_jump_side: bool  # forward, impenetrable surfaces: J must land on the free side
+
+
+def _newton_inverse(surface: Surface) -> Callable:
+    """J⁻¹ by Newton's method, differentiable by the implicit function theorem."""
+    solver = optx.Newton(rtol=1e-13, atol=1e-13)
+
+    def inverse(t, x, args):
+        def residual(z, x_):
+            return surface.jump(t, z, args) - x_
+
+        guess = 2 * x - surface.jump(t, x, args)
+        sol = optx.root_find(residual, solver, guess, args=x, throw=False, max_steps=64)
+        ok = sol.result == optx.RESULTS.successful
+        return jnp.where(ok, sol.value, jnp.nan)
+
+    return inverse
+
+
+def _forward_piece(surface: Surface) -> _Piece:
+    def inside(t, x, args):
+        return closed_piece(surface.where, t, x, args)
+
+    return _Piece(surface.phi, surface.jump, inside, (1,), surface.impenetrable)
+
+
+def _backward_piece(surface: Surface, vector_field) -> _Piece:
+    inverse = surface.inverse_jump or _newton_inverse(surface)
+
+    def gap(t, x, args):
+        return surface.phi(t, inverse(t, x, args), args)
+
+    def inside(t, x, args):
+        # x ∈ Γ̃ is an impact point in backward time iff z = J⁻¹(x) is a forward impact
+        # point: inside the piece, and met while Φ was not increasing.
+        z = jax.lax.stop_gradient(inverse(t, x, args))
+        in_piece, on_boundary = closed_piece(surface.where, t, z, args)
+        _, approach = jax.jvp(
+            lambda t_, z_: surface.phi(t_, z_, args),
+            (t, z),
+            (jnp.ones_like(t), vector_field(t, z, args)),
+        )
+        floor = gap_floor(surface.phi, t, z, args)
+        scale = jnp.sqrt(floor * jnp.max(jnp.abs(vector_field(t, z, args))) + floor)
+        ok = in_piece & (approach <= scale) & jnp.all(jnp.isfinite(z))
+        return ok, on_boundary
+
+    return _Piece(gap, inverse, inside, (1, -1), False)
+
+
+# --------------------------------------------------------------------------------------
+# Loop state
+# --------------------------------------------------------------------------------------
+
+
+class _Carry(eqx.Module):
+    s: Any  # local clock at the start of the next step
+    t_hi: Any  # absolute time of the last restart, double-double
+    t_lo: Any
+    y: Any
+    h: Any  # next step size
+    solver_state: Any
+    controller_state: Any
+    made_jump: Any
+    restart: Any  # bool[m]: the flight starts on surface i (guard its first step)
+    landing: Any  # bool: the next step lands exactly on a located contact
+    target: Any  # local time of that contact
+    pending: Any  # bool[m, signs]: which surfaces (and sides) the contact involves
+    touch: Any  # bool[m, signs]: tangential contacts (γ)
+    boundary: Any  # bool[m, signs]: contacts on ∂Γ (β)
+    h_after: Any  # step size to resume with after the impact
+    num_impacts: Any
+    log_t: Any
+    log_pre: Any
+    log_post: Any
+    log_surface: Any
+    log_kind: Any
+    intervals: Any  # the last three inter-impact times, for Zeno detection
+    zeno_time: Any
+    num_steps: Any
+    num_accepted: Any
+    status: Any
+    done: Any
+    t_final: Any
+    x_final: Any
+    save_index: Any
+    save_xs: Any
+
+
+def _two_sum(a, b):
+    s = a + b
+    bb = s - a
+    err = (a - (s - bb)) + (b - bb)
+    return s, err
+
+
+def _dd_add(hi, lo, x):
+    """(hi, lo) + x in double-double arithmetic."""
+    s, e = _two_sum(hi, x)
+    e = e + lo
+    return _two_sum(s, e)
+
+
+# --------------------------------------------------------------------------------------
+# simulate
+# --------------------------------------------------------------------------------------
+
+
+def simulate(
+    scene: Scene,
+    x0,
+    t0,
+    t1,
+    args=None,
+    *,
+    solver: diffrax.AbstractSolver | None = None,
+    rtol: float = 1e-8,
+    atol: float = 1e-10,
+    stepsize_controller: diffrax.AbstractAdaptiveStepSizeController | None = None,
+    dt0=None,
+    max_impacts: int = 100,
+    max_steps: int = 100_000,
+    saveat=None,
+    zeno_rtol: float = 1e-6,
+    direction: int | None = None,
+    allow_float32: bool = False,
+    throw: bool = False,
+) -> Solution:
+    r"""Simulate x' = f(t, x) with jumps x → J_i(x) on the surface pieces Γ_i, from t0 to t1.
+
+    One call is one XLA program: it works under `jax.jit`, `jax.vmap` (batched `x0` and
+    `args` leaves) and `jax.jacfwd` (with respect to `x0` and `args`).
+
+    **Arguments:**
+
+    - `scene`: a [`grazejax.Scene`][].
+    - `x0`: initial state, shape `(n,)`. Must not lie strictly inside a surface
+      (it may lie *on* one: a flight never impacts at its start time).
+    - `t0`, `t1`: start and end times. `t1 < t0` integrates backward in time through the
+      image surfaces Γ̃_i = J_i(Γ_i) with the inverse jumps (paper, Theorem 2.2).
+      `t1 = ±inf` runs until `max_impacts` (e.g. `max_impacts=1` is the impact map).
+    - `args`: a pytree of parameters passed to every scene function. Vary numbers here:
+      changing them never recompiles.
+    - `solver`: a Diffrax solver (default `diffrax.Tsit5()`). Tested: `Tsit5`, `Dopri5`,
+      `Dopri8`, and the implicit `Kvaerno5` for stiff flows.
+    - `rtol`, `atol`: tolerances of the default `diffrax.PIDController`.
+    - `stepsize_controller`: an adaptive Diffrax controller (overrides `rtol`/`atol`).
+    - `dt0`: first step size (default: chosen by the controller).
+    - `max_impacts`: size of the impact log; the run stops (status `MAX_IMPACTS`) right
+      after this many impacts.
+    - `max_steps`: bound on solver steps (status `MAX_STEPS`).
+    - `saveat`: optional array of times (monotone in the direction of integration)
+      at which to save the state; values are left-continuous (pre-impact at an impact
+      time). Without it no dense output is compiled.
+    - `zeno_rtol`: Zeno accumulation is declared when the last three inter-impact times
+      shrink geometrically (ratios equal to 5%) and the predicted time left to
+      accumulation is below `zeno_rtol × (t − t0)`; the estimate is in `zeno_time`.
+    - `direction`: `+1` or `-1`; needed only when `t0`, `t1` are traced (inside `jit`).
+    - `allow_float32`: grazejax runs in float64; a float32 `x0` is an error unless this
+      is set (contact floors then scale with float32's epsilon).
+    - `throw`: raise if the run does not end with `SUCCESS`, `MAX_IMPACTS` or `ZENO`
+      (only outside `vmap`; batches report per-lane status instead).
+
+    **Returns:** a [`grazejax.Solution`][].
+
+    **Event semantics** (DESIGN.md §2): an impact on Γ_i happens when Φ_i reaches 0 while
+    decreasing, or touches 0 tangentially, at a point of the closed piece (`where` true to
+    within round-off). Upward crossings pass through; Φ < 0 is allowed. A flight starting on
+    a surface (after a jump or at x0) does not impact at its start time. Excursions into
+    Φ < 0 shorter than a solver step are found by an in-step minimum search: an excursion of
+    depth δ > floor is an impact, a miss by more than the floor is not, and contacts within
+    the floor (64 ulps of Σ|∂Φ/∂x_k|·‖x‖∞ + |∂Φ/∂t|·|t|, ~1e-14 for unit-size states)
+    are reported as grazing (γ). Contacts on several pieces within ~1e3 ulps of each other
+    are simultaneous: all are applied, in the order of `scene.surfaces`, each only if its
+    surface is still approached after the previous jumps.
+
+    **Example:**
+
+    ```python
+    import grazejax as gj
+    from grazejax.examples import bouncing_ball
+
+    scene, args = bouncing_ball(), {"g": 9.81, "e": 0.8}
+    sol = gj.simulate(scene, [1.0, 0.0], 0.0, 2.0, args)
+    print(sol.summary())
+    ```
+    """
+    checked = validate_inputs(
+        scene, x0, t0, t1, args, max_impacts=max_impacts, max_steps=max_steps,
+        direction=direction, allow_float32=allow_float32, saveat=saveat,
+    )
+    x0, t0, t1, sigma, ts = checked.x0, checked.t0, checked.t1, checked.sigma, checked.ts
+    dtype = x0.dtype
+
+    if solver is None:
+        solver = diffrax.Tsit5()
+    if stepsize_controller is None:
+        stepsize_controller = diffrax.PIDController(rtol=rtol, atol=atol)
+    controller = stepsize_controller.wrap(1)
+    solver = _with_implicit_tolerances(solver, controller)
+    # Runge-Kutta stages default to a checkpointed loop (custom_vjp), which forward-mode
+    # autodiff cannot enter; a plain lax loop supports jvp, jacfwd and vmap.
+    if getattr(solver, "scan_kind", "lax") is None:
+        solver = eqx.tree_at(lambda s: s.scan_kind, solver, "lax", is_leaf=lambda x: x is None)
+
+    f = scene.vector_field
+    if sigma > 0:
+        pieces = tuple(_forward_piece(s) for s in scene.surfaces)
+        kinds = (ImpactKind.ALPHA, ImpactKind.BETA, ImpactKind.GAMMA)
+    else:
+        pieces = tuple(_backward_piece(s, f) for s in scene.surfaces)
+        kinds = (ImpactKind.ALPHA_PRIME, ImpactKind.BETA_PRIME, ImpactKind.GAMMA_PRIME)
+    m = len(pieces)
+    max_signs = max((len(p.signs) for p in pieces), default=1)
+    eps = jnp.finfo(dtype).eps
+
+    # The loop runs in local time s >= 0; absolute time is t = t_hi + t_lo + σ s.
+    def abs_time(s, t_hi, t_lo):
+        return t_hi + (t_lo + sigma * s)
+
+    def local_field(s, y, targs):
+        args_, t_hi, t_lo = targs
+        return sigma * f(abs_time(s, t_hi, t_lo), y, args_)
+
+    term = diffrax.ODETerm(local_field)
+
+    def s_end_of(t_hi, t_lo):
+        return sigma * ((t1 - t_hi) - t_lo)
+
+    targs0 = (args, t0, jnp.zeros_like(t0))
+    s_end0 = s_end_of(t0, jnp.zeros_like(t0))
+    error_order = solver.error_order(term)
+    zero = jnp.zeros((), dtype)
+    tnext, controller_state0 = controller.init(
+        term, zero, s_end0, x0, dt0, targs0, solver.func, error_order
+    )
+    h0 = jnp.minimum(tnext, s_end0)
+    solver_state0 = solver.init(term, zero, h0, x0, targs0)
+    # Below h_min a step no longer moves t: the controller has given up.
+    time_scale = jnp.maximum(jnp.abs(t0), 1e3 * jnp.abs(h0))
+    time_scale = jnp.maximum(time_scale, jnp.where(jnp.isfinite(t1), jnp.abs(t1), 0.0))
+
+    def h_min_at(t_abs):
+        return 16 * eps * jnp.maximum(jnp.abs(t_abs), time_scale)
+
+    # ---- per-surface helpers (static Python loops over the pieces) ----
+
+    def gap_along(piece, sign, s_to_y, t_hi, t_lo, args_):
+        def g(s):
+            return sign * piece.gap(abs_time(s, t_hi, t_lo), s_to_y(s), args_)
+
+        return g
+
+    def slopes_at(piece, sign, s, y, t_hi, t_lo, args_):
+        """g, ġ, g̈ along the true vector field at (s, y)."""
+        t = abs_time(s, t_hi, t_lo)
+
+        def gdot(t_, y_):
+            return jax.jvp(
+                lambda tt, yy: sign * piece.gap(tt, yy, args_),
+                (t_, y_),
+                (sigma * jnp.ones_like(t_), sigma * f(t_, y_, args_)),
+            )
+
+        (g, gd), (_, gdd) = jax.jvp(
+            gdot, (t, y), (sigma * jnp.ones_like(t), sigma * f(t, y, args_))
+        )
+        return g, gd, gdd
+
+    def on_surface(piece, t, y, args_):
+        floor = gap_floor(piece.gap, t, y, args_)
+        g = piece.gap(t, y, args_)
+        return (jnp.abs(g) <= floor) & jnp.isfinite(g), floor
+
+    restart0 = jnp.array(
+        [on_surface(p, t0, x0, args)[0] for p in pieces], dtype=bool
+    ).reshape((m,))
+
+    n = x0.shape[0]
+    nan = jnp.array(jnp.nan, dtype)
+    if ts is not None:
+        save_xs0 = jnp.full((ts.shape[0], n), jnp.nan, dtype)
+        save_index0 = jnp.array(0)
+    else:
+        save_xs0 = save_index0 = None
+
+    finite0 = jnp.all(jnp.isfinite(x0)) & _tree_all_finite(args)
+    mask_shape = (m, max_signs)
+    init = _Carry(
+        s=zero, t_hi=t0, t_lo=jnp.zeros_like(t0), y=x0, h=h0,
+        solver_state=solver_state0, controller_state=controller_state0,
+        made_jump=jnp.array(False), restart=restart0,
+        landing=jnp.array(False), target=zero,
+        pending=jnp.zeros(mask_shape, bool), touch=jnp.zeros(mask_shape, bool),
+        boundary=jnp.zeros(mask_shape, bool), h_after=h0,
+        num_impacts=jnp.array(0),
+        log_t=jnp.full((max_impacts,), jnp.nan, dtype),
+        log_pre=jnp.full((max_impacts, n), jnp.nan, dtype),
+        log_post=jnp.full((max_impacts, n), jnp.nan, dtype),
+        log_surface=jnp.full((max_impacts,), -1),
+        log_kind=jnp.full((max_impacts,), int(ImpactKind.NONE)),
+        intervals=jnp.full((3,), jnp.nan, dtype), zeno_time=nan,
+        num_steps=jnp.array(0), num_accepted=jnp.array(0),
+        status=jnp.where(finite0, int(Status.SUCCESS), int(Status.NONFINITE)),
+        done=~finite0, t_final=t0, x_final=x0,
+        save_index=save_index0, save_xs=save_xs0,
+    )
+
+    # ---- saving at requested times (compiled only when asked) ----
+
+    def save(c: _Carry, interp, sa, s_stop):
+        if ts is None:
+            return c.save_index, c.save_xs
+        num = ts.shape[0]
+
+        def local(j):
+            return sigma * ((ts[jnp.minimum(j, num - 1)] - c.t_hi) - c.t_lo)
+
+        def cond(carry):
+            j, _ = carry
+            return (j < num) & (local(j) <= s_stop)
+
+        def body(carry):
+            j, xs = carry
+            s_j = jnp.clip(local(j), sa, s_stop)
+            return j + 1, xs.at[j].set(interp.evaluate(s_j))
+
+        return lax.while_loop(cond, body, (c.save_index, c.save_xs))
+
+    # ---- one iteration: one solver step ----
+
+    def body(c: _Carry) -> _Carry:
+        args_ = args
+        targs = (args_, c.t_hi, c.t_lo)
+        s_end = s_end_of(c.t_hi, c.t_lo)
+        sa = c.s
+        sb = jnp.where(c.landing, c.target, jnp.minimum(sa + c.h, s_end))
+        y1, y_error, dense_info, solver_state1, _ = solver.step(
+            term, sa, sb, c.y, targs, c.solver_state, c.made_jump
+        )
+        # A NaN error estimate must reject the step, not poison the controller (diffrax #143).
+        y_error = jnp.where(jnp.isnan(y_error), jnp.inf, y_error)
+        keep, _, tnext, _, controller_state1, _ = controller.adapt_step_size(
+            sa, sb, c.y, y1, targs, y_error, error_order, c.controller_state
+        )
+        finite1 = jnp.all(jnp.isfinite(y1))
+        keep = keep & finite1
+        h_next = jax.lax.stop_gradient(tnext - jnp.where(keep, sb, sa))
+        interp = solver.interpolation_cls(t0=sa, t1=sb, **dense_info)
+        num_steps = c.num_steps + 1
+
+        # ---------- detection on a normally accepted step ----------
+        detecting = keep & ~c.landing & ~c.done
+
+        def y_of(s):
+            return interp.evaluate(s)
+
+        ends = []
+        for i, piece in enumerate(pieces):
+            row = []
+            for sign in piece.signs:
+                g = gap_along(piece, sign, y_of, c.t_hi, c.t_lo, args_)
+                row.append((g, step_ends(g, sa, sb, c.restart[i])))
+            ends.append(row)
+        candidate = jnp.array(False)
+        for row in ends:
+            for _, e in row:
+                crossing, dip = is_candidate(e)
+                candidate = candidate | crossing | dip
+        candidate = detecting & candidate
+
+        def search():
+            found = jnp.zeros(mask_shape, bool)
+            times = jnp.full(mask_shape, jnp.inf, dtype)
+            touch = jnp.zeros(mask_shape, bool)
+            boundary = jnp.zeros(mask_shape, bool)
+            for i, piece in enumerate(pieces):
+                for k, (g, e) in enumerate(ends[i]):
+                    floor = gap_floor(piece.gap, abs_time(sb, c.t_hi, c.t_lo), y1, args_)
+                    contact = locate(g, sa, sb, e, c.restart[i], floor)
+                    t_abs = abs_time(contact.time, c.t_hi, c.t_lo)
+                    inside, on_boundary = piece.inside(t_abs, y_of(contact.time), args_)
+                    ok = contact.found & inside
+                    found = found.at[i, k].set(ok)
+                    times = times.at[i, k].set(jnp.where(ok, contact.time, jnp.inf))
+                    touch = touch.at[i, k].set(contact.touch)
+                    boundary = boundary.at[i, k].set(on_boundary)
+            return found, times, touch, boundary
+
+        def no_search():
+            return (
+                jnp.zeros(mask_shape, bool), jnp.full(mask_shape, jnp.inf, dtype),
+                jnp.zeros(mask_shape, bool), jnp.zeros(mask_shape, bool),
+            )
+
+        if m > 0:
+            found, times, touch, boundary = lax.cond(
+                eqxi.unvmap_any(candidate), search, no_search
+            )
+        else:
+            found, times, touch, boundary = no_search()
+        found = found & candidate
+        event = jnp.any(found)
+        first = jax.lax.stop_gradient(jnp.min(times))
+        simultaneous = 1e3 * eps * (jnp.abs(first) + (sb - sa))
+        pending = found & (times <= first + simultaneous)
+
+        # ---------- the landing step: apply the impact(s) ----------
+        def land():
+            return _land(c, y1, sa, sb, interp)
+
+        def no_land():
+            return c
+
+        landed = lax.cond(eqxi.unvmap_any(c.landing & ~c.done), land, no_land)
+
+        # ---------- assemble the next carry ----------
+        accept_free = detecting & ~event  # accepted, no contact: move on
+        go_land = detecting & event  # contact located: retake the step up to it
+        reject = ~keep & ~c.landing & ~c.done
+
+        save_index, save_xs = (c.save_index, c.save_xs)
+        if ts is not None:
+            si, sx = save(c, interp, sa, sb)
+            save_index = jnp.where(accept_free, si, landed.save_index)
+            save_xs = jnp.where(accept_free, sx, landed.save_xs)
+
+        reached_end = accept_free & (sb >= s_end - h_min_at(abs_time(sb, c.t_hi, c.t_lo)))
+        underflow = reject & (h_next < h_min_at(abs_time(sa, c.t_hi, c.t_lo)))
+        fail_status = jnp.where(finite1, int(Status.STEP_SIZE_UNDERFLOW), int(Status.NONFINITE))
+
+        def pick(a_free, a_land, a_goland, a_other):
+            return jnp.where(
+                accept_free, a_free, jnp.where(c.landing, a_land, jnp.where(go_land, a_goland, a_other))
+            )
+
+        new = _Carry(
+            s=pick(sb, landed.s, sa, sa),
+            t_hi=jnp.where(c.landing, landed.t_hi, c.t_hi),
+            t_lo=jnp.where(c.landing, landed.t_lo, c.t_lo),
+            y=pick(y1, landed.y, c.y, c.y),
+            h=pick(h_next, landed.h, c.h, h_next),
+            solver_state=jax.tree.map(
+                lambda a, b: jnp.where(accept_free | c.landing, a, b), solver_state1, c.solver_state
+            ),
+            controller_state=jax.tree.map(
+                lambda a, b: jnp.where(c.landing, b, a), controller_state1, c.controller_state
+            ),
+            made_jump=pick(False, landed.made_jump, c.made_jump, c.made_jump),
+            restart=jnp.where(accept_free, False, jnp.where(c.landing, landed.restart, c.restart)),
+            landing=go_land,
+            target=jnp.where(go_land, first, c.target),
+            pending=jnp.where(go_land, pending, c.pending),
+            touch=jnp.where(go_land, touch & pending, c.touch),
+            boundary=jnp.where(go_land, boundary & pending, c.boundary),
+            h_after=jnp.where(go_land, jnp.maximum(sb - sa, h_next), c.h_after),
+            num_impacts=landed.num_impacts,
+            log_t=landed.log_t, log_pre=landed.log_pre, log_post=landed.log_post,
+            log_surface=landed.log_surface, log_kind=landed.log_kind,
+            intervals=landed.intervals, zeno_time=landed.zeno_time,
+            num_steps=jnp.where(c.done, c.num_steps, num_steps),
+            num_accepted=c.num_accepted + (accept_free | (c.landing & ~c.done)),
+            status=jnp.where(
+                reached_end | c.done | c.landing, landed.status,
+                jnp.where(underflow, fail_status, c.status),
+            ),
+            done=c.done | reached_end | landed.done | underflow,
+            t_final=jnp.where(
+                reached_end, t1, jnp.where(underflow, abs_time(sa, c.t_hi, c.t_lo), landed.t_final)
+            ),
+            x_final=jnp.where(reached_end, y1, jnp.where(underflow, c.y, landed.x_final)),
+            save_index=save_index, save_xs=save_xs,
+        )
+        return new
+
+    # ---- landing: the step [sa, target] has just been taken exactly ----
+
+    def _land(c: _Carry, y_star, sa, s_star, interp) -> _Carry:
+        args_ = args
+        t_hi, t_lo = c.t_hi, c.t_lo
+        # One Newton step on the time, with the true vector field: corrects the
+        # interpolant's root to the method's accuracy and carries d(time)/d(params) by
+        # the implicit function theorem. Driven by the first pending surface.
+        f_star = local_field(s_star, y_star, (args_, t_hi, t_lo))
+        delta = jnp.zeros_like(s_star)
+        chosen = jnp.array(False)
+        for i, piece in enumerate(pieces):
+            for k, sign in enumerate(piece.signs):
+                g, gd, _ = slopes_at(piece, sign, s_star, y_star, t_hi, t_lo, args_)
+                width = jax.lax.stop_gradient(s_star - sa)
+                use = c.pending[i, k] & ~c.touch[i, k] & ~chosen
+                ok = use & (jnp.abs(jax.lax.stop_gradient(g)) <= 1e-2 * jnp.abs(jax.lax.stop_gradient(gd)) * width) & (gd != 0)
+                delta = jnp.where(ok, -safe_divide(g, gd, ok), delta)
+                chosen = chosen | use
+        s_event = s_star + delta
+        y_event = y_star + f_star * delta
+        t_event_hi, t_event_lo = _dd_add(t_hi, t_lo, sigma * s_event)
+        t_event = t_event_hi + t_event_lo
+
+        # Apply the jumps in surface order.
+        x = y_event
+        count = jnp.array(0)
+        applied_any = jnp.array(False)
+        bad_side = jnp.array(False)
+        log = (c.log_t, c.log_pre, c.log_post, c.log_surface, c.log_kind)
+        for i, piece in enumerate(pieces):
+            for k, sign in enumerate(piece.signs):
+                _, gd, _ = slopes_at(piece, sign, s_event, x, t_hi, t_lo, args_)
+                approaching = (gd < 0) | c.touch[i, k]
+                apply = c.pending[i, k] & (~applied_any | approaching)
+                x_new = piece.jump(t_event, x, args_)
+                kind = jnp.where(
+                    c.touch[i, k], int(kinds[2]), jnp.where(c.boundary[i, k], int(kinds[1]), int(kinds[0]))
+                )
+                row = jnp.minimum(c.num_impacts + count, max_impacts - 1)
+                log = _write_log(log, row, apply, t_event, x, x_new, i, kind)
+                if piece.check_jump_side:
+                    g_new, gd_new, gdd_new = slopes_at(piece, sign, s_event, x_new, t_hi, t_lo, args_)
+                    floor = gap_floor(piece.gap, t_event, x_new, args_)
+                    moving_in = (gd_new < 0) & (gd_new**2 > 2 * jnp.abs(gdd_new) * floor)
+                    bad_side = bad_side | (apply & ((g_new < -floor) | ((g_new <= floor) & moving_in)))
+                x = jnp.where(apply, x_new, x)
+                count = count + apply
+                applied_any = applied_any | apply
+        x_post = x
+        num_impacts = c.num_impacts + count
+
+        # Restart guard and sticking test at the post-impact state.
+        restart = []
+        stuck = jnp.array(False)
+        for i, piece in enumerate(pieces):
+            on, floor = on_surface(piece, t_event, x_post, args_)
+            restart.append(on)
+            for sign in piece.signs:
+                _, gd, gdd = slopes_at(piece, sign, jnp.zeros_like(s_event), x_post, t_event_hi, t_event_lo, args_)
+                # Tangential restart with the flow pushing into the surface: the state
+                # would slide into Φ < 0 from rest (e.g. restitution 0). That is
+                # sticking, the end of a Zeno sequence; never tunnel.
+                tangential = gd**2 <= 2 * jnp.abs(gdd) * floor
+                stuck = stuck | (on & tangential & (gdd < 0))
+        restart = jnp.array(restart, dtype=bool).reshape((m,))
+
+        # Zeno: geometric shrinking of the inter-impact times.
+        interval = jax.lax.stop_gradient(s_event)
+        intervals = jnp.concatenate([c.intervals[1:], interval[None]])
+        d0, d1, d2 = intervals[0], intervals[1], intervals[2]
+        r_prev = safe_divide(d1, d0, d0 > 0)
+        r_last = safe_divide(d2, d1, d1 > 0)
+        geometric = (r_last > 0) & (r_last < 1) & (jnp.abs(r_last - r_prev) <= 0.05 * r_last)
+        remaining = safe_divide(d2 * r_last, 1 - r_last, r_last < 1)
+        elapsed = jnp.abs(t_event - t0)
+        zeno = geometric & (remaining <= zeno_rtol * elapsed)
+        t_resolution = h_min_at(t_event)
+        zeno = zeno | (interval <= t_resolution) & (c.num_impacts > 0)
+        zeno_time = jnp.where(zeno, t_event + sigma * remaining, jnp.where(stuck, t_event, nan))
+        zeno = zeno | stuck
+
+        finite = jnp.all(jnp.isfinite(x_post))
+        status = jnp.where(
+            ~finite, int(Status.NONFINITE),
+            jnp.where(bad_side, int(Status.BAD_JUMP),
+            jnp.where(zeno, int(Status.ZENO),
+            jnp.where(num_impacts >= max_impacts, int(Status.MAX_IMPACTS), int(Status.SUCCESS)))),
+        )
+        stop = status != int(Status.SUCCESS)
+        save_index, save_xs = save(c, interp, sa, s_star) if ts is not None else (c.save_index, c.save_xs)
+        lands = c.landing & ~c.done
+        keep_old = lambda new, old: jnp.where(lands, new, old)  # noqa: E731
+        return eqx.tree_at(
+            lambda z: (
+                z.s, z.t_hi, z.t_lo, z.y, z.h, z.made_jump, z.restart, z.num_impacts,
+                z.log_t, z.log_pre, z.log_post, z.log_surface, z.log_kind,
+                z.intervals, z.zeno_time, z.status, z.done, z.t_final, z.x_final,
+                z.save_index, z.save_xs,
+            ),
+            c,
+            (
+                keep_old(jnp.zeros_like(s_event), c.s),
+                keep_old(t_event_hi, c.t_hi),
+                keep_old(t_event_lo, c.t_lo),
+                keep_old(jnp.where(finite, x_post, y_event), c.y),
+                keep_old(c.h_after, c.h),
+                keep_old(True, c.made_jump),
+                keep_old(restart, c.restart),
+                keep_old(num_impacts, c.num_impacts),
+                *(keep_old(a, b) for a, b in zip(log, (c.log_t, c.log_pre, c.log_post, c.log_surface, c.log_kind))),
+                keep_old(intervals, c.intervals),
+                keep_old(zeno_time, c.zeno_time),
+                keep_old(status, c.status),
+                keep_old(stop, c.done),
+                keep_old(t_event, c.t_final),
+                keep_old(jnp.where(finite, x_post, y_event), c.x_final),
+                keep_old(save_index, c.save_index) if ts is not None else None,
+                keep_old(save_xs, c.save_xs) if ts is not None else None,
+            ),
+            is_leaf=lambda z: z is None,
+        )
+
+    def cond(c: _Carry):
+        return ~c.done & (c.num_steps < max_steps)
+
+    final = lax.while_loop(cond, body, init)
+
+    out_of_steps = ~final.done
+    t_now = abs_time(final.s, final.t_hi, final.t_lo)
+    status = jnp.where(out_of_steps, int(Status.MAX_STEPS), final.status)
+    sol = Solution(
+        t_final=jnp.where(out_of_steps, t_now, final.t_final),
+        x_final=jnp.where(out_of_steps, final.y, final.x_final),
+        num_impacts=final.num_impacts,
+        impact_times=final.log_t,
+        impact_pre=final.log_pre,
+        impact_post=final.log_post,
+        impact_surface=final.log_surface,
+        impact_kind=final.log_kind,
+        status=status,
+        zeno_time=final.zeno_time,
+        num_steps=final.num_steps,
+        num_accepted_steps=final.num_accepted,
+        ts=ts,
+        xs=final.save_xs,
+    )
+    if throw:
+        sol = _throw_if_failed(sol)
+    return sol
+
+
+def _write_log(log, row, apply, t, pre, post, surface, kind):
+    log_t, log_pre, log_post, log_surface, log_kind = log
+    return (
+        log_t.at[row].set(jnp.where(apply, t, log_t[row])),
+        log_pre.at[row].set(jnp.where(apply, pre, log_pre[row])),
+        log_post.at[row].set(jnp.where(apply, post, log_post[row])),
+        log_surface.at[row].set(jnp.where(apply, surface, log_surface[row])),
+        log_kind.at[row].set(jnp.where(apply, kind, log_kind[row])),
+    )
+
+
+def _tree_all_finite(tree):
+    leaves = [
+        jnp.all(jnp.isfinite(leaf))
+        for leaf in jax.tree.leaves(tree)
+        if eqx.is_array_like(leaf) and jnp.issubdtype(jnp.result_type(leaf), jnp.inexact)
+    ]
+    return jnp.all(jnp.array(leaves)) if leaves else jnp.array(True)
+
+
+def _with_implicit_tolerances(solver, controller):
+    """Give an implicit solver's root finder the controller's tolerances, as diffeqsolve does."""
+    if not isinstance(solver, diffrax.AbstractImplicitSolver):
+        return solver
+    from diffrax._root_finder import use_stepsize_tol
+
+    attrs = [
+        a for a in ("rtol", "atol", "norm") if getattr(solver.root_finder, a) is use_stepsize_tol
+    ]
+    if not attrs:
+        return solver
+    return eqx.tree_at(
+        lambda s: tuple(getattr(s.root_finder, a) for a in attrs),
+        solver,
+        tuple(getattr(controller, a) for a in attrs),
+    )
+
+
+def _throw_if_failed(sol: Solution) -> Solution:
+    ok = (
+        (sol.status == Status.SUCCESS)
+        | (sol.status == Status.MAX_IMPACTS)
+        | (sol.status == Status.ZENO)
+    )
+    x_final = eqx.error_if(
+        sol.x_final, ~ok, "grazejax.simulate did not succeed: see Solution.status"
+    )
+    return eqx.tree_at(lambda s: s.x_final, sol, x_final)

@@ -1,0 +1,64 @@
+"""Outcome codes: one `Status` per run (per lane of a batch), one `ImpactKind` per impact."""
+
+import enum
+
+
+class Status(enum.IntEnum):
+    """How a run ended. Stored as an integer array in `Solution.status`.
+
+    Inside `jax.jit` / `jax.vmap` nothing raises: every run (every lane) carries its own
+    status, and `Status(int(sol.status))` turns it back into a readable member.
+    """
+
+    SUCCESS = 0
+    """Reached `t1`."""
+    MAX_IMPACTS = 1
+    """Stopped right after the `max_impacts`-th impact (the usual way to run "N impacts")."""
+    ZENO = 2
+    """Impact times accumulate (or the state sticks to a surface): stopped after the last
+    resolved impact; `Solution.zeno_time` estimates the accumulation time."""
+    MAX_STEPS = 3
+    """`max_steps` solver steps were taken before reaching `t1`."""
+    NONFINITE = 4
+    """The vector field or a jump produced NaN/inf (or x0/args were non-finite)."""
+    STEP_SIZE_UNDERFLOW = 5
+    """The step size controller shrank the step below the resolution of t."""
+    BAD_JUMP = 6
+    """A jump on an `impenetrable` surface left the state inside it (Φ < 0 beyond
+    round-off) or on it still moving in: the scene's jump law contradicts its surface."""
+
+    @property
+    def message(self) -> str:
+        return _MESSAGES[self]
+
+
+_MESSAGES = {
+    Status.SUCCESS: "reached t1",
+    Status.MAX_IMPACTS: "stopped after max_impacts impacts",
+    Status.ZENO: "impact times accumulate (Zeno) or the state sticks to a surface",
+    Status.MAX_STEPS: "max_steps solver steps taken before t1",
+    Status.NONFINITE: "non-finite state (NaN/inf) from the vector field, a jump or input",
+    Status.STEP_SIZE_UNDERFLOW: "step size fell below the resolution of t",
+    Status.BAD_JUMP: "a jump on an impenetrable surface left the state inside it or moving in",
+}
+
+
+class ImpactKind(enum.IntEnum):
+    """The paper's classification of a discontinuity point (§2).
+
+    α: interior of Γ, transversal; β: boundary ∂Γ, transversal; γ: tangential contact
+    (grazing). Primes are the same types on the image surface Γ̃ = J(Γ), met in backward
+    time. `NONE` pads unused rows of the impact log.
+    """
+
+    NONE = -1
+    ALPHA = 0
+    BETA = 1
+    GAMMA = 2
+    ALPHA_PRIME = 3
+    BETA_PRIME = 4
+    GAMMA_PRIME = 5
+
+    @property
+    def is_grazing(self) -> bool:
+        return self in (ImpactKind.GAMMA, ImpactKind.GAMMA_PRIME)

@@ -1,0 +1,158 @@
+"""Input checks that run before tracing, so that bad input fails with a readable message.
+
+Checks that need values (NaN in x0, t0 == t1) run only when the values are concrete; inside
+`jit`/`vmap` the same problems end the run with a status instead (never silently).
+"""
+
+from typing import NamedTuple
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._scene import Scene
+
+
+class Checked(NamedTuple):
+    x0: jax.Array
+    t0: jax.Array
+    t1: jax.Array
+    sigma: int  # +1 forward, -1 backward: static, it changes which surfaces exist
+    ts: jax.Array | None
+
+
+def _is_concrete(x) -> bool:
+    return not isinstance(x, jax.core.Tracer)
+
+
+def validate_inputs(
+    scene, x0, t0, t1, args, *, max_impacts, max_steps, direction, allow_float32, saveat
+) -> Checked:
+    if not isinstance(scene, Scene):
+        raise TypeError(f"scene must be a grazejax.Scene, got {type(scene).__name__}")
+    if not isinstance(max_impacts, (int, np.integer)) or max_impacts < 1:
+        raise ValueError(f"max_impacts must be an integer >= 1, got {max_impacts!r}")
+    if not isinstance(max_steps, (int, np.integer)) or max_steps < 1:
+        raise ValueError(f"max_steps must be an integer >= 1, got {max_steps!r}")
+
+    float64 = jax.config.read("jax_enable_x64")
+    x0_dtype = jnp.result_type(x0) if eqx.is_array_like(x0) else None
+    if x0_dtype is not None and x0_dtype == jnp.float32 and not allow_float32:
+        raise TypeError(
+            "x0 is float32: grazejax computes in float64 (contact floors, event times and "
+            "Jacobians assume it). Pass a float64 x0, or allow_float32=True to opt in."
+        )
+    if not float64 and not allow_float32:
+        raise RuntimeError(
+            "jax_enable_x64 is off, so the run would be float32. grazejax enables it on "
+            "import; something turned it off. Re-enable it, or pass allow_float32=True."
+        )
+    dtype = jnp.float32 if (x0_dtype == jnp.float32 and allow_float32) else jnp.float64
+    if x0_dtype is not None and jnp.issubdtype(x0_dtype, jnp.complexfloating):
+        raise TypeError("x0 must be real, got a complex array")
+    concrete_x0 = _is_concrete(x0)
+    if concrete_x0 and not np.all(np.isfinite(np.asarray(x0, dtype=np.float64))):
+        raise ValueError(f"x0 contains NaN or inf: {np.asarray(x0)}")
+    x0 = jnp.asarray(x0, dtype=dtype)
+    if x0.ndim != 1:
+        raise ValueError(
+            f"x0 must be a 1-D state vector of shape (n,), got shape {x0.shape}. "
+            "For a batch, use jax.vmap or grazejax.sweep."
+        )
+    if x0.shape[0] == 0:
+        raise ValueError("x0 is empty: the state needs at least one coordinate")
+    if args is not None:
+        for leaf in jax.tree.leaves(args):
+            if eqx.is_array_like(leaf) and _is_concrete(leaf):
+                value = np.asarray(leaf)
+                if np.issubdtype(value.dtype, np.inexact) and not np.all(np.isfinite(value)):
+                    raise ValueError(f"args contains NaN or inf: {value}")
+
+    concrete_times = _is_concrete(t0) and _is_concrete(t1)
+    if concrete_times:
+        a, b = np.asarray(t0, dtype=np.float64), np.asarray(t1, dtype=np.float64)
+    t0 = jnp.asarray(t0, dtype=dtype)
+    t1 = jnp.asarray(t1, dtype=dtype)
+    if t0.ndim != 0 or t1.ndim != 0:
+        raise ValueError(f"t0 and t1 must be scalars, got shapes {t0.shape} and {t1.shape}")
+    if concrete_times:
+        a, b = float(a), float(b)
+        if not np.isfinite(a):
+            raise ValueError(f"t0 must be finite, got {a}")
+        if np.isnan(b):
+            raise ValueError("t1 is NaN")
+        if a == b:
+            raise ValueError(f"t0 == t1 == {a}: nothing to simulate")
+        sigma = 1 if b > a else -1
+        if direction is not None and direction != sigma:
+            raise ValueError(f"direction={direction} disagrees with t0={a}, t1={b}")
+    else:
+        if direction not in (1, -1):
+            raise ValueError(
+                "t0/t1 are traced (inside jit/vmap): pass direction=+1 or -1, since "
+                "forward and backward runs compile different surfaces."
+            )
+        sigma = int(direction)
+
+    _check_scene_shapes(scene, x0, t0, args)
+
+    ts = None
+    if saveat is not None:
+        ts = jnp.asarray(saveat, dtype=dtype)
+        if ts.ndim != 1 or ts.shape[0] == 0:
+            raise ValueError(f"saveat must be a non-empty 1-D array of times, got shape {ts.shape}")
+        if _is_concrete(saveat) and concrete_times:
+            values = np.asarray(saveat, dtype=np.float64) * sigma
+            if np.any(np.diff(values) < 0):
+                raise ValueError("saveat times must be monotone in the direction of integration")
+            lo, hi = sorted((float(t0), float(t1)))
+            if np.any(values * sigma < lo) or np.any(values * sigma > hi):
+                raise ValueError("saveat times must lie between t0 and t1")
+    return Checked(x0, t0, t1, sigma, ts)
+
+
+def _check_scene_shapes(scene: Scene, x0, t0, args):
+    """Trace each scene function once on shapes only (no compilation, no FLOPs)."""
+    n = x0.shape
+
+    def shape_of(fn, what):
+        try:
+            return jax.eval_shape(fn, t0, x0, args)
+        except Exception as error:  # noqa: BLE001 - re-raised with context
+            raise type(error)(f"{what} failed on a state of shape {n}: {error}") from error
+
+    out = shape_of(scene.vector_field, "vector_field(t, x, args)")
+    if getattr(out, "shape", None) != n:
+        raise ValueError(
+            f"vector_field(t, x, args) must return shape {n} like x, got {getattr(out, 'shape', type(out))}"
+        )
+    for i, surface in enumerate(scene.surfaces):
+        label = scene.surface_name(i)
+        out = shape_of(surface.phi, f"surface {label}: phi(t, x, args)")
+        if getattr(out, "shape", None) != ():
+            raise ValueError(
+                f"surface {label}: phi(t, x, args) must return a scalar, got shape "
+                f"{getattr(out, 'shape', type(out))}"
+            )
+        if not jnp.issubdtype(out.dtype, jnp.floating):
+            raise TypeError(f"surface {label}: phi must return a float, got {out.dtype}")
+        out = shape_of(surface.jump, f"surface {label}: jump(t, x, args)")
+        if getattr(out, "shape", None) != n:
+            raise ValueError(
+                f"surface {label}: jump(t, x, args) must return a state of shape {n}, got "
+                f"{getattr(out, 'shape', type(out))}"
+            )
+        if surface.where is not None:
+            out = shape_of(surface.where, f"surface {label}: where(t, x, args)")
+            if getattr(out, "shape", None) != () or out.dtype != jnp.bool_:
+                raise ValueError(
+                    f"surface {label}: where(t, x, args) must return a boolean scalar, got "
+                    f"{getattr(out, 'dtype', type(out))} of shape {getattr(out, 'shape', None)}"
+                )
+        if surface.inverse_jump is not None:
+            out = shape_of(surface.inverse_jump, f"surface {label}: inverse_jump(t, x, args)")
+            if getattr(out, "shape", None) != n:
+                raise ValueError(
+                    f"surface {label}: inverse_jump must return a state of shape {n}"
+                )
