@@ -33,28 +33,31 @@ from ._roots import bracketed_root, safe_divide
 FLOOR_ULPS = 64.0
 
 
-def gap_floor(gap, t, x, args):
+def gap_floor(gap, t, x, args, x_scale=None):
     """Round-off floor of a gap value at (t, x): 64 ulps of Σ|∂Φ/∂x_k|·‖x‖∞ + |∂Φ/∂t|·|t|.
 
     This is the documented resolution of contact detection: an excursion deeper than the
     floor is always an impact, a miss by more than the floor never is, and anything in
     between is reported as a grazing contact (γ). It scales with the problem's units.
+    `x_scale` overrides ‖x‖∞ (the loop passes the largest state magnitude of the step).
     """
     t, x = jax.lax.stop_gradient((t, x))
     dphi_dt, dphi_dx = jax.grad(lambda t_, x_: gap(t_, x_, args), argnums=(0, 1))(t, x)
     eps = jnp.finfo(x.dtype).eps
-    scale = jnp.sum(jnp.abs(dphi_dx)) * jnp.max(jnp.abs(x)) + jnp.abs(dphi_dt * t)
+    x_norm = jnp.max(jnp.abs(x)) if x_scale is None else jax.lax.stop_gradient(x_scale)
+    scale = jnp.sum(jnp.abs(dphi_dx)) * x_norm + jnp.abs(dphi_dt * t)
     return jax.lax.stop_gradient(FLOOR_ULPS * eps * scale + jnp.finfo(x.dtype).tiny)
 
 
-def closed_piece(where, t, x, args):
-    """Evaluate `where` on the closure of the piece, to within round-off.
+def closed_piece(where, t, x, args, tol=None):
+    """Evaluate `where` on the closure of the piece, to within the state's accuracy.
 
     Returns `(inside, on_boundary)`. A point counts as inside if `where` holds at it or
-    at one of its 2n neighbours x ± δ_k e_k, δ_k = 1e3·ulp(max(|x_k|, ‖x‖∞)); it is on the
-    boundary ∂Γ (a β or γ point in the paper) if those evaluations disagree. This makes
-    the paper's closed pieces (e.g. `x2 <= 0`) robust to the last bits of an interpolated
-    state: a grazing contact exactly at ∂Γ is not lost to x2 = +1e-17.
+    at one of its 2n neighbours x ± δ_k e_k, with δ_k = max(1e3 ulps of ‖x‖∞, tol(x)_k)
+    (the loop passes ten times the solver tolerance); it is on the boundary ∂Γ (a β or γ
+    point in the paper) if those evaluations disagree. This makes the paper's closed
+    pieces (e.g. `x2 <= 0`) robust to the last bits of a computed state: a contact
+    exactly at ∂Γ is not lost to x2 = +1e-12.
     """
     if where is None:
         return jnp.array(True), jnp.array(False)
@@ -62,6 +65,8 @@ def closed_piece(where, t, x, args):
     n = x.shape[0]
     eps = jnp.finfo(x.dtype).eps
     delta = 1e3 * eps * (jnp.abs(x) + jnp.max(jnp.abs(x)) + jnp.finfo(x.dtype).tiny)
+    if tol is not None:
+        delta = jnp.maximum(delta, jax.lax.stop_gradient(tol(x)))
     offsets = jnp.concatenate(
         [jnp.zeros((1, n), x.dtype), jnp.diag(delta), -jnp.diag(delta)], axis=0
     )
@@ -133,7 +138,9 @@ def locate(g, sa, sb, ends: StepEnds, restart, floor) -> Contact:
     )
     t_min = jnp.where(dip, t_min, sb)
     g_min = jnp.where(dip, g(t_min), ends.g_end)
-    dip_hits = dip & (g_min <= 0)
+    # Contact iff the dip reaches within the floor of Φ = 0; within the floor either way
+    # it is a touch (γ), so an exact tangency is reported the same whatever the last bits.
+    dip_hits = dip & (g_min <= floor)
     touch = dip_hits & (g_min > -floor)
 
     # 2. The crossing root of G, on [sa, sb] for crossings or [sa, t_min] for deep dips.

@@ -77,8 +77,8 @@ def _newton_inverse(surface: Surface) -> Callable:
 
 
 def _forward_piece(surface: Surface) -> _Piece:
-    def inside(t, x, args):
-        return closed_piece(surface.where, t, x, args)
+    def inside(t, x, args, tol):
+        return closed_piece(surface.where, t, x, args, tol)
 
     return _Piece(surface.phi, surface.jump, inside, (1,), surface.impenetrable)
 
@@ -89,11 +89,11 @@ def _backward_piece(surface: Surface, vector_field) -> _Piece:
     def gap(t, x, args):
         return surface.phi(t, inverse(t, x, args), args)
 
-    def inside(t, x, args):
+    def inside(t, x, args, tol):
         # x ∈ Γ̃ is an impact point in backward time iff z = J⁻¹(x) is a forward impact
         # point: inside the piece, and met while Φ was not increasing.
         z = jax.lax.stop_gradient(inverse(t, x, args))
-        in_piece, on_boundary = closed_piece(surface.where, t, z, args)
+        in_piece, on_boundary = closed_piece(surface.where, t, z, args, tol)
         _, approach = jax.jvp(
             lambda t_, z_: surface.phi(t_, z_, args),
             (t, z),
@@ -272,6 +272,13 @@ def simulate(
     m = len(pieces)
     max_signs = max((len(p.signs) for p in pieces), default=1)
     eps = jnp.finfo(dtype).eps
+    # The state is only known to the solver's tolerance: piece boundaries (`where`) are
+    # resolved to within ten times that, so a crossing exactly on ∂Γ is not lost.
+    tol_r = getattr(controller, "rtol", rtol)
+    tol_a = getattr(controller, "atol", atol)
+
+    def state_tol(x):
+        return 10 * (tol_a + tol_r * jnp.abs(x))
 
     # The loop runs in local time s >= 0; absolute time is t = t_hi + t_lo + σ s.
     def abs_time(s, t_hi, t_lo):
@@ -326,8 +333,8 @@ def simulate(
         )
         return g, gd, gdd
 
-    def on_surface(piece, t, y, args_):
-        floor = gap_floor(piece.gap, t, y, args_)
+    def on_surface(piece, t, y, args_, x_scale=None):
+        floor = gap_floor(piece.gap, t, y, args_, x_scale)
         g = piece.gap(t, y, args_)
         return (jnp.abs(g) <= floor) & jnp.isfinite(g), floor
 
@@ -435,10 +442,11 @@ def simulate(
             boundary = jnp.zeros(mask_shape, bool)
             for i, piece in enumerate(pieces):
                 for k, (g, e) in enumerate(ends[i]):
-                    floor = gap_floor(piece.gap, abs_time(sb, c.t_hi, c.t_lo), y1, args_)
+                    x_scale = jnp.maximum(jnp.max(jnp.abs(c.y)), jnp.max(jnp.abs(y1)))
+                    floor = gap_floor(piece.gap, abs_time(sb, c.t_hi, c.t_lo), y1, args_, x_scale)
                     contact = locate(g, sa, sb, e, c.restart[i], floor)
                     t_abs = abs_time(contact.time, c.t_hi, c.t_lo)
-                    inside, on_boundary = piece.inside(t_abs, y_of(contact.time), args_)
+                    inside, on_boundary = piece.inside(t_abs, y_of(contact.time), args_, state_tol)
                     ok = contact.found & inside
                     found = found.at[i, k].set(ok)
                     times = times.at[i, k].set(jnp.where(ok, contact.time, jnp.inf))
@@ -573,9 +581,10 @@ def simulate(
                 )
                 row = jnp.minimum(c.num_impacts + count, max_impacts - 1)
                 log = _write_log(log, row, apply, t_event, x, x_new, i, kind)
+                x_scale = jnp.maximum(jnp.max(jnp.abs(x)), jnp.max(jnp.abs(x_new)))
                 if piece.check_jump_side:
                     g_new, gd_new, gdd_new = slopes_at(piece, sign, s_event, x_new, t_hi, t_lo, args_)
-                    floor = gap_floor(piece.gap, t_event, x_new, args_)
+                    floor = gap_floor(piece.gap, t_event, x_new, args_, x_scale)
                     moving_in = (gd_new < 0) & (gd_new**2 > 2 * jnp.abs(gdd_new) * floor)
                     bad_side = bad_side | (apply & ((g_new < -floor) | ((g_new <= floor) & moving_in)))
                 x = jnp.where(apply, x_new, x)
@@ -587,8 +596,9 @@ def simulate(
         # Restart guard and sticking test at the post-impact state.
         restart = []
         stuck = jnp.array(False)
+        x_scale = jnp.maximum(jnp.max(jnp.abs(y_event)), jnp.max(jnp.abs(x_post)))
         for i, piece in enumerate(pieces):
-            on, floor = on_surface(piece, t_event, x_post, args_)
+            on, floor = on_surface(piece, t_event, x_post, args_, x_scale)
             restart.append(on)
             for sign in piece.signs:
                 _, gd, gdd = slopes_at(piece, sign, jnp.zeros_like(s_event), x_post, t_event_hi, t_event_lo, args_)
@@ -622,7 +632,10 @@ def simulate(
             jnp.where(num_impacts >= max_impacts, int(Status.MAX_IMPACTS), int(Status.SUCCESS)))),
         )
         stop = status != int(Status.SUCCESS)
-        save_index, save_xs = save(c, interp, sa, s_star) if ts is not None else (c.save_index, c.save_xs)
+        # Left-continuity with respect to the *logged* impact time: save up to s_event plus
+        # the rounding of t_event, so `saveat=[t_impact]` returns the pre-impact state.
+        s_save = s_event + 4 * eps * jnp.abs(t_event)
+        save_index, save_xs = save(c, interp, sa, s_save) if ts is not None else (c.save_index, c.save_xs)
         lands = c.landing & ~c.done
         keep_old = lambda new, old: jnp.where(lands, new, old)  # noqa: E731
         return eqx.tree_at(
