@@ -1,0 +1,128 @@
+"""Bad input fails before compilation with a message naming the problem."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import grazejax as gj
+from grazejax import examples as ex
+
+BALL = ex.bouncing_ball()
+ARGS = {"g": 9.81, "e": 0.8}
+
+
+def surface(**kw):
+    base = dict(phi=lambda t, x, a: x[0], jump=lambda t, x, a: x.at[1].set(-x[1]))
+    base.update(kw)
+    return gj.Surface(**base)
+
+
+def field(t, x, a):
+    return jnp.stack([x[1], -9.81 * jnp.ones_like(x[0])])
+
+
+@pytest.mark.parametrize(
+    "x0,match",
+    [([np.nan, 0.0], "NaN or inf"), ([np.inf, 0.0], "NaN or inf"), ([[1.0, 0.0]], "1-D"), ([], "empty")],
+)
+def test_bad_x0(x0, match):
+    with pytest.raises(ValueError, match=match):
+        gj.simulate(BALL, x0, 0.0, 1.0, ARGS)
+
+
+def test_nan_args():
+    with pytest.raises(ValueError, match="args contains NaN"):
+        gj.simulate(BALL, [1.0, 0.0], 0.0, 1.0, {"g": 9.81, "e": float("nan")})
+
+
+def test_t0_equals_t1():
+    with pytest.raises(ValueError, match="t0 == t1"):
+        gj.simulate(BALL, [1.0, 0.0], 1.0, 1.0, ARGS)
+
+
+@pytest.mark.parametrize("value", [0, -3, 2.5])
+def test_max_impacts_must_be_positive_int(value):
+    with pytest.raises(ValueError, match="max_impacts"):
+        gj.simulate(BALL, [1.0, 0.0], 0.0, 1.0, ARGS, max_impacts=value)
+
+
+def test_float32_needs_opt_in():
+    x0 = jnp.array([1.0, 0.0], dtype=jnp.float32)
+    with pytest.raises(TypeError, match="float32"):
+        gj.simulate(BALL, x0, 0.0, 1.0, ARGS)
+
+
+def test_phi_must_be_scalar():
+    scene = gj.Scene(field, [surface(phi=lambda t, x, a: x)])
+    with pytest.raises(ValueError, match="phi.*scalar"):
+        gj.simulate(scene, [1.0, 0.0], 0.0, 1.0)
+
+
+def test_jump_must_keep_shape():
+    scene = gj.Scene(field, [surface(jump=lambda t, x, a: x[:1])])
+    with pytest.raises(ValueError, match="jump.*shape"):
+        gj.simulate(scene, [1.0, 0.0], 0.0, 1.0)
+
+
+def test_where_must_be_boolean():
+    scene = gj.Scene(field, [surface(where=lambda t, x, a: x[1])])
+    with pytest.raises(ValueError, match="where.*boolean"):
+        gj.simulate(scene, [1.0, 0.0], 0.0, 1.0)
+
+
+def test_vector_field_shape():
+    scene = gj.Scene(lambda t, x, a: x[:1], [surface()])
+    with pytest.raises(ValueError, match="vector_field"):
+        gj.simulate(scene, [1.0, 0.0], 0.0, 1.0)
+
+
+def test_scene_functions_must_be_callable():
+    with pytest.raises(TypeError, match="callable"):
+        gj.Surface(phi=1.0, jump=lambda t, x, a: x)
+    with pytest.raises(TypeError, match="Surface"):
+        gj.Scene(field, [lambda t, x, a: x[0]])
+
+
+def test_traced_times_need_direction():
+    run = jax.jit(lambda t1: gj.simulate(BALL, jnp.array([1.0, 0.0]), 0.0, t1, ARGS).x_final)
+    with pytest.raises(ValueError, match="direction"):
+        run(1.0)
+    run = jax.jit(lambda t1: gj.simulate(BALL, jnp.array([1.0, 0.0]), 0.0, t1, ARGS, direction=1).x_final)
+    assert np.all(np.isfinite(run(1.0)))
+
+
+def test_nan_inside_jit_is_a_status_not_a_silent_answer():
+    run = jax.jit(lambda x0: gj.simulate(BALL, x0, 0.0, 1.0, ARGS).status)
+    assert gj.Status(int(run(jnp.array([jnp.nan, 0.0])))) == gj.Status.NONFINITE
+
+
+def test_vector_field_producing_nan_ends_with_nonfinite():
+    scene = gj.Scene(lambda t, x, a: jnp.stack([x[1], jnp.sqrt(x[0] - 0.5) - 9.81]), [surface()])
+    sol = gj.simulate(scene, [1.0, 0.0], 0.0, 2.0, max_impacts=5)
+    assert gj.Status(int(sol.status)) in (gj.Status.NONFINITE, gj.Status.STEP_SIZE_UNDERFLOW)
+    assert np.all(np.isfinite(np.asarray(sol.x_final)))
+
+
+def test_jump_to_nan_is_reported():
+    scene = gj.Scene(field, [surface(jump=lambda t, x, a: x * jnp.nan)])
+    sol = gj.simulate(scene, [1.0, 0.0], 0.0, 2.0)
+    assert gj.Status(int(sol.status)) == gj.Status.NONFINITE
+    assert int(sol.num_impacts) == 1
+
+
+def test_jump_into_an_impenetrable_wall_is_reported():
+    scene = gj.Scene(field, [surface(jump=lambda t, x, a: x.at[1].set(x[1]), impenetrable=True)])
+    sol = gj.simulate(scene, [1.0, 0.0], 0.0, 2.0)
+    assert gj.Status(int(sol.status)) == gj.Status.BAD_JUMP
+
+
+def test_max_steps_exhausted():
+    sol = gj.simulate(BALL, [1.0, 0.0], 0.0, 100.0, {"g": 9.81, "e": 1.0}, max_steps=20)
+    assert gj.Status(int(sol.status)) == gj.Status.MAX_STEPS
+    assert int(sol.num_steps) == 20
+
+
+def test_throw_raises_on_failure():
+    with pytest.raises(Exception, match="did not succeed"):
+        gj.simulate(BALL, [1.0, 0.0], 0.0, 100.0, {"g": 9.81, "e": 1.0}, max_steps=20, throw=True)
