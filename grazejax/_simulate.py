@@ -486,11 +486,11 @@ def simulate(
         go_land = detecting & event  # contact located: retake the step up to it
         reject = ~keep & ~c.landing & ~c.done
 
-        save_index, save_xs = (c.save_index, c.save_xs)
+        save_index, save_xs = landed.save_index, landed.save_xs
         if ts is not None:
-            si, sx = save(c, interp, sa, sb)
-            save_index = jnp.where(accept_free, si, landed.save_index)
-            save_xs = jnp.where(accept_free, sx, landed.save_xs)
+            # Rows are written in place; lanes that do not move on save nothing.
+            landed_saves = eqx.tree_at(lambda z: (z.save_index, z.save_xs), c, (save_index, save_xs))
+            save_index, save_xs = save(landed_saves, interp, sa, jnp.where(accept_free, sb, -jnp.inf))
 
         reached_end = accept_free & (sb >= s_end - h_min_at(abs_time(sb, c.t_hi, c.t_lo)))
         underflow = reject & (h_next < h_min_at(abs_time(sa, c.t_hi, c.t_lo)))
@@ -545,6 +545,7 @@ def simulate(
     def _land(c: _Carry, y_star, sa, s_star, interp) -> _Carry:
         args_ = args
         t_hi, t_lo = c.t_hi, c.t_lo
+        lands = c.landing & ~c.done
         # One Newton step on the time, with the true vector field: corrects the
         # interpolant's root to the method's accuracy and carries d(time)/d(params) by
         # the implicit function theorem. Driven by the first pending surface.
@@ -574,7 +575,9 @@ def simulate(
             for k, sign in enumerate(piece.signs):
                 _, gd, _ = slopes_at(piece, sign, s_event, x, t_hi, t_lo, args_)
                 approaching = (gd < 0) | c.touch[i, k]
-                apply = c.pending[i, k] & (~applied_any | approaching)
+                # `lands` folded in here so that the log is written row-wise only: a
+                # whole-array select of the log every iteration dominated batched runs.
+                apply = lands & c.pending[i, k] & (~applied_any | approaching)
                 x_new = piece.jump(t_event, x, args_)
                 kind = jnp.where(
                     c.touch[i, k], int(kinds[2]), jnp.where(c.boundary[i, k], int(kinds[1]), int(kinds[0]))
@@ -634,9 +637,8 @@ def simulate(
         stop = status != int(Status.SUCCESS)
         # Left-continuity with respect to the *logged* impact time: save up to s_event plus
         # the rounding of t_event, so `saveat=[t_impact]` returns the pre-impact state.
-        s_save = s_event + 4 * eps * jnp.abs(t_event)
+        s_save = jnp.where(lands, s_event + 4 * eps * jnp.abs(t_event), -jnp.inf)
         save_index, save_xs = save(c, interp, sa, s_save) if ts is not None else (c.save_index, c.save_xs)
-        lands = c.landing & ~c.done
         keep_old = lambda new, old: jnp.where(lands, new, old)  # noqa: E731
         return eqx.tree_at(
             lambda z: (
@@ -655,15 +657,15 @@ def simulate(
                 keep_old(True, c.made_jump),
                 keep_old(restart, c.restart),
                 keep_old(num_impacts, c.num_impacts),
-                *(keep_old(a, b) for a, b in zip(log, (c.log_t, c.log_pre, c.log_post, c.log_surface, c.log_kind))),
+                *log,
                 keep_old(intervals, c.intervals),
                 keep_old(zeno_time, c.zeno_time),
                 keep_old(status, c.status),
                 keep_old(stop, c.done),
                 keep_old(t_event, c.t_final),
                 keep_old(jnp.where(finite, x_post, y_event), c.x_final),
-                keep_old(save_index, c.save_index) if ts is not None else None,
-                keep_old(save_xs, c.save_xs) if ts is not None else None,
+                save_index,
+                save_xs,
             ),
             is_leaf=lambda z: z is None,
         )
