@@ -473,24 +473,50 @@ def simulate(
         pending = found & (times <= first + simultaneous)
 
         # ---------- the landing step: apply the impact(s) ----------
+        # The branch returns only small values: the log and save buffers are written below,
+        # outside the cond, one row at a time (threading them through the cond made every
+        # iteration copy them: cost grew with max_impacts and len(saveat)).
         def land():
             return _land(c, y1, sa, sb, interp)
 
         def no_land():
-            return c
+            slots = sum(len(p.signs) for p in pieces)
+            rows = (
+                jnp.zeros((slots,), bool), jnp.zeros((slots, n), dtype), jnp.zeros((slots, n), dtype),
+                jnp.zeros((slots,), jnp.asarray(0).dtype), jnp.zeros((slots,), jnp.asarray(0).dtype),
+            )
+            return _without_buffers(c), rows, jnp.zeros((), dtype), jnp.array(-jnp.inf, dtype)
 
-        landed = lax.cond(eqxi.unvmap_any(c.landing & ~c.done), land, no_land)
+        if m > 0:
+            landed_small, rows, t_event, s_save = lax.cond(
+                eqxi.unvmap_any(c.landing & ~c.done), land, no_land
+            )
+        else:
+            landed_small, rows, t_event, s_save = no_land()
+        log = (c.log_t, c.log_pre, c.log_post, c.log_surface, c.log_kind)
+        count = jnp.array(0)
+        for slot in range(rows[0].shape[0]):
+            apply, pre, post, surface, kind = (r[slot] for r in rows)
+            row = jnp.minimum(c.num_impacts + count, max_impacts - 1)
+            log = _write_log(log, row, apply, t_event, pre, post, surface, kind)
+            count = count + apply
+        landed = eqx.tree_at(
+            lambda z: (z.log_t, z.log_pre, z.log_post, z.log_surface, z.log_kind),
+            _with_buffers(landed_small, c),
+            log,
+        )
 
         # ---------- assemble the next carry ----------
         accept_free = detecting & ~event  # accepted, no contact: move on
         go_land = detecting & event  # contact located: retake the step up to it
         reject = ~keep & ~c.landing & ~c.done
 
-        save_index, save_xs = landed.save_index, landed.save_xs
+        save_index, save_xs = c.save_index, c.save_xs
         if ts is not None:
-            # Rows are written in place; lanes that do not move on save nothing.
-            landed_saves = eqx.tree_at(lambda z: (z.save_index, z.save_xs), c, (save_index, save_xs))
-            save_index, save_xs = save(landed_saves, interp, sa, jnp.where(accept_free, sb, -jnp.inf))
+            # One save pass for the step just taken, in the flight's clock before any jump:
+            # up to sb on a free step, up to the event on a landing, nothing otherwise.
+            s_stop = jnp.where(accept_free, sb, jnp.where(c.landing & ~c.done, s_save, -jnp.inf))
+            save_index, save_xs = save(c, interp, sa, s_stop)
 
         reached_end = accept_free & (sb >= s_end - h_min_at(abs_time(sb, c.t_hi, c.t_lo)))
         underflow = reject & (h_next < h_min_at(abs_time(sa, c.t_hi, c.t_lo)))
@@ -570,7 +596,7 @@ def simulate(
         count = jnp.array(0)
         applied_any = jnp.array(False)
         bad_side = jnp.array(False)
-        log = (c.log_t, c.log_pre, c.log_post, c.log_surface, c.log_kind)
+        rows = []  # one per (surface, side): (apply, pre, post, surface, kind)
         for i, piece in enumerate(pieces):
             for k, sign in enumerate(piece.signs):
                 _, gd, _ = slopes_at(piece, sign, s_event, x, t_hi, t_lo, args_)
@@ -582,8 +608,7 @@ def simulate(
                 kind = jnp.where(
                     c.touch[i, k], int(kinds[2]), jnp.where(c.boundary[i, k], int(kinds[1]), int(kinds[0]))
                 )
-                row = jnp.minimum(c.num_impacts + count, max_impacts - 1)
-                log = _write_log(log, row, apply, t_event, x, x_new, i, kind)
+                rows.append((apply, x, x_new, jnp.asarray(i), kind))
                 x_scale = jnp.maximum(jnp.max(jnp.abs(x)), jnp.max(jnp.abs(x_new)))
                 if piece.check_jump_side:
                     g_new, gd_new, gdd_new = slopes_at(piece, sign, s_event, x_new, t_hi, t_lo, args_)
@@ -638,14 +663,11 @@ def simulate(
         # Left-continuity with respect to the *logged* impact time: save up to s_event plus
         # the rounding of t_event, so `saveat=[t_impact]` returns the pre-impact state.
         s_save = jnp.where(lands, s_event + 4 * eps * jnp.abs(t_event), -jnp.inf)
-        save_index, save_xs = save(c, interp, sa, s_save) if ts is not None else (c.save_index, c.save_xs)
         keep_old = lambda new, old: jnp.where(lands, new, old)  # noqa: E731
-        return eqx.tree_at(
+        small = eqx.tree_at(
             lambda z: (
                 z.s, z.t_hi, z.t_lo, z.y, z.h, z.made_jump, z.restart, z.num_impacts,
-                z.log_t, z.log_pre, z.log_post, z.log_surface, z.log_kind,
                 z.intervals, z.zeno_time, z.status, z.done, z.t_final, z.x_final,
-                z.save_index, z.save_xs,
             ),
             c,
             (
@@ -657,18 +679,16 @@ def simulate(
                 keep_old(True, c.made_jump),
                 keep_old(restart, c.restart),
                 keep_old(num_impacts, c.num_impacts),
-                *log,
                 keep_old(intervals, c.intervals),
                 keep_old(zeno_time, c.zeno_time),
                 keep_old(status, c.status),
                 keep_old(stop, c.done),
                 keep_old(t_event, c.t_final),
                 keep_old(jnp.where(finite, x_post, y_event), c.x_final),
-                save_index,
-                save_xs,
             ),
-            is_leaf=lambda z: z is None,
         )
+        rows = jax.tree.map(lambda *r: jnp.stack(r), *rows)
+        return _without_buffers(small), rows, t_event, s_save
 
     def cond(c: _Carry):
         return ~c.done & (c.num_steps < max_steps)
@@ -697,6 +717,23 @@ def simulate(
     if throw:
         sol = _throw_if_failed(sol)
     return sol
+
+
+_BUFFERS = ("log_t", "log_pre", "log_post", "log_surface", "log_kind", "save_index", "save_xs")
+
+
+def _without_buffers(c: _Carry) -> _Carry:
+    return eqx.tree_at(
+        lambda z: tuple(getattr(z, k) for k in _BUFFERS), c, (None,) * len(_BUFFERS),
+        is_leaf=lambda z: z is None,
+    )
+
+
+def _with_buffers(small: _Carry, full: _Carry) -> _Carry:
+    return eqx.tree_at(
+        lambda z: tuple(getattr(z, k) for k in _BUFFERS), small,
+        tuple(getattr(full, k) for k in _BUFFERS), is_leaf=lambda z: z is None,
+    )
 
 
 def _write_log(log, row, apply, t, pre, post, surface, kind):

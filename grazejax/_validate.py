@@ -106,7 +106,7 @@ def validate_inputs(
             values = np.asarray(saveat, dtype=np.float64) * sigma
             if np.any(np.diff(values) < 0):
                 raise ValueError("saveat times must be monotone in the direction of integration")
-            lo, hi = sorted((float(t0), float(t1)))
+            lo, hi = sorted((a, b))
             if np.any(values * sigma < lo) or np.any(values * sigma > hi):
                 raise ValueError("saveat times must lie between t0 and t1")
     return Checked(x0, t0, t1, sigma, ts)
