@@ -1,2 +1,140 @@
-def main(argv=None):
-    raise SystemExit("not yet")
+"""The `grazejax` command line: `grazejax reproduce` and `grazejax bench`.
+
+`main(argv)` returns the exit status (0 success, 1 failure while running, 2 bad usage:
+unknown figure name, unwritable output folder) instead of raising, so that it can be
+called in-process; the console script (`grazejax = grazejax._cli:main`) passes it to
+`sys.exit`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import subprocess
+import sys
+from pathlib import Path
+
+BENCH_SCRIPT = Path("benchmarks") / "bench_core.py"
+DEFAULT_OUT = "grazejax-output"  # kept equal to grazejax._reproduce.DEFAULT_OUT
+
+
+def _figure_help() -> str:
+    from ._reproduce import FIGURES
+
+    lines = []
+    for name, spec in FIGURES.items():
+        lines.append(f"  {name:<20} {spec.title} [paper: {spec.paper_figure}]")
+    return "figures:\n" + "\n".join(lines)
+
+
+def _build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="grazejax",
+        description="grazejax: differentiable simulation of impact systems with grazing.",
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+
+    rep = sub.add_parser(
+        "reproduce",
+        help="recompute the paper's figures and write a report",
+        description=(
+            "Recompute the figures of Akhmet & Kivilcim, 'Discontinuous dynamics with\n"
+            "grazing points', as PNG files, plus report.md and report.json (starts,\n"
+            "impacts, final states, checks of the paper's printed values).\n\n"
+            f"Output folder: ./{DEFAULT_OUT}/ in the current directory unless --out is given.\n"
+            "All figures take about a minute or two on a laptop CPU."
+        ),
+        epilog=_figure_help()
+        + "\n\nAn example name (orbex2, exnonaxial, ex1dof, smalldisc) selects all its figures.",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    rep.add_argument(
+        "--out", metavar="DIR", default=None,
+        help="output folder, created if needed (default: ./grazejax-output/ in the current "
+             "directory)",
+    )
+    rep.add_argument(
+        "--only", metavar="NAME", nargs="+", action="extend", default=None,
+        help="only these figures (figure or example names; repeatable)",
+    )
+    rep.add_argument("--list", action="store_true", help="list the figure names and exit")
+    rep.add_argument("--quiet", action="store_true", help="no progress lines")
+    rep.set_defaults(subparser=rep)
+
+    bench = sub.add_parser(
+        "bench",
+        help="run the core benchmarks (source checkout only)",
+        description=(
+            f"Run {BENCH_SCRIPT} from the grazejax source checkout. The benchmarks are not "
+            "installed with the package; extra arguments are passed to the script."
+        ),
+    )
+    bench.add_argument("bench_args", nargs=argparse.REMAINDER, help="arguments for the script")
+    return parser
+
+
+def _find_bench_script() -> Path | None:
+    here = Path(__file__).resolve().parent.parent  # the folder holding the package
+    for root in (here, Path.cwd()):
+        candidate = root / BENCH_SCRIPT
+        if candidate.is_file():
+            return candidate
+    return None
+
+
+def _bench(ns) -> int:
+    script = _find_bench_script()
+    if script is None:
+        print(
+            f"grazejax bench: {BENCH_SCRIPT} not found. The benchmarks live in the grazejax "
+            "source checkout (they are not installed with the package): clone the repository "
+            "and run `grazejax bench` (or `python benchmarks/bench_core.py`) from its root.",
+            file=sys.stderr,
+        )
+        return 1
+    args = [a for a in ns.bench_args if a != "--"]
+    return subprocess.call([sys.executable, str(script), *args], cwd=script.parent.parent)
+
+
+def _reproduce(ns, parser) -> int:
+    from . import _reproduce as rp
+
+    if ns.list:
+        print(_figure_help())
+        return 0
+    try:
+        names = rp.resolve_names(ns.only)
+        out = rp.prepare_output(ns.out if ns.out is not None else rp.DEFAULT_OUT)
+    except rp.ReproduceError as error:
+        parser.print_usage(sys.stderr)
+        print(f"grazejax reproduce: error: {error}", file=sys.stderr)
+        return 2
+    report = rp.reproduce(out, names, progress=None if ns.quiet else _say)
+    failed = [n for n, fig in report["figures"].items() if "error" in fig]
+    if failed:
+        print(f"grazejax reproduce: {len(failed)} figure(s) failed: {', '.join(failed)}",
+              file=sys.stderr)
+        return 1
+    return 0
+
+
+def _say(message: str) -> None:
+    print(message, flush=True)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the `grazejax` command. Returns the exit status."""
+    parser = _build_parser()
+    try:
+        ns = parser.parse_args(argv)
+    except SystemExit as exit_:  # argparse: --help (0) or a usage error (2)
+        return exit_.code if isinstance(exit_.code, int) else 0
+    if ns.command == "reproduce":
+        return _reproduce(ns, ns.subparser)
+    if ns.command == "bench":
+        return _bench(ns)
+    parser.print_help()
+    return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,99 @@
+"""Smoke tests of `grazejax reproduce` (the CLI, in-process) and of `grazejax.plot`."""
+
+import json
+
+import numpy as np
+import pytest
+
+import grazejax as gj
+from grazejax import _cli, examples, plot
+
+
+def test_reproduce_two_cheap_figures(tmp_path, capsys):
+    out = tmp_path / "out"
+    code = _cli.main(
+        ["reproduce", "--out", str(out), "--only", "exnonaxial-circle", "orbex2-stability"]
+    )
+    assert code == 0
+    for name in ("exnonaxial-circle.png", "orbex2-stability.png", "report.md", "report.json"):
+        assert (out / name).is_file() and (out / name).stat().st_size > 0, name
+    report = json.loads((out / "report.json").read_text())
+    assert set(report["figures"]) == {"exnonaxial-circle", "orbex2-stability"}
+    fig = report["figures"]["exnonaxial-circle"]
+    assert "error" not in fig
+    outer, inner = fig["runs"]
+    assert outer["start"] == [0.0, 1.32] and outer["num_impacts"] > 0
+    assert inner["num_impacts"] == 0  # the inner circle (radius 0.96) never reaches Γ
+    # The first impact agrees with the closed form (rotation flow).
+    first = fig["checks"]["first_impact_vs_closed_form"]
+    assert abs(first["t_error"]) < 1e-7 and first["state_error"] < 1e-7
+    # Progress lines: one per figure.
+    printed = capsys.readouterr().out
+    assert "[1/2] orbex2-stability" in printed and "[2/2] exnonaxial-circle" in printed
+    assert "exnonaxial-circle.png" in (out / "report.md").read_text()
+
+
+def test_unknown_name_lists_valid_names(tmp_path, capsys):
+    code = _cli.main(["reproduce", "--out", str(tmp_path), "--only", "orbex3"])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert "unknown figure or example name(s): 'orbex3'" in err
+    assert "orbex2-region" in err and "ex1dof-bifurcation" in err and "smalldisc" in err
+    assert "Traceback" not in err
+    assert not any(tmp_path.iterdir())  # nothing written
+
+
+def test_unwritable_output_folder(tmp_path, capsys):
+    blocker = tmp_path / "a-file"
+    blocker.write_text("not a folder")
+    code = _cli.main(["reproduce", "--out", str(blocker / "sub"), "--only", "orbex2-region"])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert "cannot write to output folder" in err and str(blocker / "sub") in err
+    assert "Traceback" not in err
+
+
+def test_help_and_list(capsys):
+    assert _cli.main(["reproduce", "--help"]) == 0
+    assert "./grazejax-output/ in the current directory" in capsys.readouterr().out
+    assert _cli.main(["reproduce", "--list"]) == 0
+    assert "ex1dof-negative-mu" in capsys.readouterr().out
+    assert _cli.main(["no-such-command"]) == 2
+
+
+def test_bench_without_checkout(monkeypatch, capsys):
+    monkeypatch.setattr(_cli, "_find_bench_script", lambda: None)
+    assert _cli.main(["bench"]) == 1
+    assert "source checkout" in capsys.readouterr().err
+
+
+def test_flight_segments_break_at_impacts():
+    scene, args = examples.exnonaxial(), examples.exnonaxial_args()
+    ts = np.linspace(0.0, 12.0, 301)
+    sol = gj.simulate(scene, np.array([0.0, 1.32]), 0.0, 12.0, args, saveat=ts)
+    log = plot.impacts_of(sol)
+    segments = plot.flight_segments(sol)
+    assert len(segments) == len(log["times"]) + 1
+    for k in range(len(log["times"])):
+        np.testing.assert_array_equal(segments[k][-1], log["pre"][k])
+        np.testing.assert_array_equal(segments[k + 1][0], log["post"][k])
+    # Surface sampling: Γ is the line x1 + x2 = √2; its image J(Γ) lies on the diagonal.
+    lines = plot.surface_samples(scene, args, 0, (-1.5, 1.5), (-1.5, 1.5))
+    pts = np.concatenate(lines)
+    assert np.max(np.abs(pts.sum(axis=1) - np.sqrt(2))) < 1e-12
+    images = np.concatenate(plot.image_samples(scene, args, 0, lines))
+    np.testing.assert_allclose(images[:, 0], images[:, 1])
+
+
+def test_default_out_matches():
+    from grazejax import _reproduce
+
+    assert _cli.DEFAULT_OUT == _reproduce.DEFAULT_OUT
+
+
+@pytest.mark.parametrize("name", ["orbex2", "ex1dof"])
+def test_example_names_select_their_figures(name):
+    from grazejax._reproduce import FIGURES, resolve_names
+
+    chosen = resolve_names([name])
+    assert chosen and all(FIGURES[f].scene == name for f in chosen)
