@@ -13,21 +13,26 @@ import jax.lax as lax
 import jax.numpy as jnp
 
 
-def bracketed_root(fn, lo, hi, f_lo, f_hi, *, max_iter: int = 60):
+def bracketed_root(fn, lo, hi, f_lo, f_hi, *, rel_width: float = 1e-10, max_iter: int = 60):
     """Locate the sign change of `fn` in `[lo, hi]`, given `f_lo > 0 >= f_hi`.
 
-    Returns `(lo, hi)` with `fn(lo) > 0 >= fn(hi)` and `hi - lo` a few ulps (or fewer than
-    `max_iter` iterations' worth of progress). `hi` is the first point at or past the sign
-    change. The result carries no derivative: callers apply one Newton step outside (the
-    implicit function theorem) when they need tangents.
+    Returns `(lo, hi)` with `fn(lo) > 0 >= fn(hi)` and `hi - lo` at most `rel_width` times
+    the initial bracket (or a few ulps). `hi` is the first point at or past the sign change.
+    The result carries no derivative: callers apply one Newton step outside (the implicit
+    function theorem) when they need tangents.
+
+    Why not to machine precision: the root only *proposes* an event time. The landing
+    step and its Newton correction then converge quadratically, so 1e-10 of a step is
+    already far below round-off after the correction; and under vmap the loop runs until
+    the slowest lane converges, so every iteration saved is saved for all lanes.
     """
     lo, hi, f_lo, f_hi = (lax.stop_gradient(v) for v in (lo, hi, f_lo, f_hi))
     eps = jnp.finfo(jnp.result_type(lo)).eps
+    target = jnp.maximum(rel_width * (hi - lo), 4 * eps * jnp.maximum(jnp.abs(lo), jnp.abs(hi)))
 
     def not_done(carry):
         lo, hi, f_lo, f_hi, _, it = carry
-        width = hi - lo
-        return (it < max_iter) & (width > 4 * eps * jnp.maximum(jnp.abs(lo), jnp.abs(hi))) & (f_hi != 0)
+        return (it < max_iter) & (hi - lo > target) & (f_hi != 0)
 
     def body(carry):
         lo, hi, f_lo, f_hi, side, it = carry
@@ -37,8 +42,8 @@ def bracketed_root(fn, lo, hi, f_lo, f_hi, *, max_iter: int = 60):
         mid = hi - f_hi * (hi - lo) / jnp.where(denom > 0, denom, 1.0)
         bisect = 0.5 * (lo + hi)
         inside = (mid > lo) & (mid < hi)
-        # Every fourth iteration bisect, which bounds the worst case on flat functions.
-        mid = jnp.where(inside & (it % 4 != 3), mid, bisect)
+        # Every sixth iteration bisect, which bounds the worst case on flat functions.
+        mid = jnp.where(inside & (it % 6 != 5), mid, bisect)
         f_mid = fn(mid)
         positive = f_mid > 0
         # Illinois: when the same end is replaced twice running, halve the other end's

@@ -118,6 +118,8 @@ def sweep(
                 )
             args_batched = _auto_batched(args, sizes.pop()) if sizes else None
     batch = _batch_size(x0s, args, args_batched)
+    if float(t0) == float(t1):
+        raise ValueError(f"t0 == t1 == {float(t0)}: nothing to simulate")
     if chunk_size is None:
         chunk_size = min(batch, 65536)
     if not isinstance(chunk_size, (int, np.integer)) or chunk_size <= 0:
@@ -168,27 +170,65 @@ def sweep(
 
 
 def _compiled_chunk(scene, t0, t1, args, flags, x0_batched, devices, simulate_kwargs):
+    """The jitted, vmapped (and sharded) chunk runner, compiled once per configuration.
+
+    Numbers (x0s, args, t0, t1, saveat) are arguments; structure (scene, which leaves are
+    batched, solver and options, devices) is the cache key, so repeated sweeps over new
+    values reuse the compiled program instead of recompiling a fresh closure each call.
+    """
+    options = dict(simulate_kwargs)
+    saveat = options.pop("saveat", None)
+    direction = 1 if float(t1) > float(t0) else -1
     in_axes_args = jax.tree.map(lambda b: 0 if b else None, flags)
+    treedef = jax.tree.structure(in_axes_args, is_leaf=lambda v: v is None)
+    key = (scene, x0_batched, treedef, tuple(jax.tree.leaves(in_axes_args, is_leaf=lambda v: v is None)),
+           tuple(sorted(options.items())), tuple(devices), direction)
+    try:
+        hash(key)
+    except TypeError:  # unhashable option values: compile without caching
+        return _build_chunk(scene, in_axes_args, x0_batched, devices, options, direction, flags)(
+            t0, t1, saveat)
+    return _cached_chunk(key, scene, in_axes_args, x0_batched, devices, options, direction, flags)(
+        t0, t1, saveat)
 
-    def one(x0, a):
-        return simulate(scene, x0, t0, t1, a, **simulate_kwargs)
 
-    batched = jax.vmap(one, in_axes=(0 if x0_batched else None, in_axes_args))
+_CHUNK_CACHE: dict = {}
+
+
+def _cached_chunk(key, *build_args):
+    if key not in _CHUNK_CACHE:
+        _CHUNK_CACHE[key] = _build_chunk(*build_args)
+    return _CHUNK_CACHE[key]
+
+
+def _build_chunk(scene, in_axes_args, x0_batched, devices, options, direction, flags):
+    def one(x0, a, t0, t1, saveat):
+        return simulate(scene, x0, t0, t1, a, saveat=saveat, direction=direction, **options)
+
+    batched = jax.vmap(one, in_axes=(0 if x0_batched else None, in_axes_args, None, None, None))
     if len(devices) == 1:
-        compiled_single = jax.jit(batched)
+        compiled = jax.jit(batched)
         device = devices[0]
-        return lambda x, a: compiled_single(jax.device_put(x, device), jax.device_put(a, device))
+
+        def bind(t0, t1, saveat):
+            return lambda x, a: compiled(
+                jax.device_put(x, device), jax.device_put(a, device), t0, t1, saveat
+            )
+
+        return bind
     mesh = jax.sharding.Mesh(np.array(devices), ("lanes",))
     lanes = jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec("lanes"))
     replicated = jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec())
     x_sharding = lanes if x0_batched else replicated
     a_sharding = jax.tree.map(lambda b: lanes if b else replicated, flags)
-    compiled = jax.jit(batched, in_shardings=(x_sharding, a_sharding), out_shardings=lanes)
+    compiled = jax.jit(batched, out_shardings=lanes)
 
-    def run(x, a):
-        return compiled(jax.device_put(x, x_sharding), jax.tree.map(jax.device_put, a, a_sharding))
+    def bind(t0, t1, saveat):
+        return lambda x, a: compiled(
+            jax.device_put(x, x_sharding), jax.tree.map(jax.device_put, a, a_sharding), t0, t1, saveat
+        )
 
-    return run
+    return bind
 
 
 def _presort_order(scene, t0, t1, lane_inputs, batch, chunk_size, flags, x0_batched, args,
