@@ -122,6 +122,7 @@ class _Carry(eqx.Module):
     controller_state: Any
     made_jump: Any
     restart: Any  # bool[m]: the flight starts on surface i (guard its first step)
+    flight_scale: Any  # max ‖x‖∞ over the current flight: the scale of its round-off
     landing: Any  # bool: the next step lands exactly on a located contact
     target: Any  # local time of that contact
     pending: Any  # bool[m, signs]: which surfaces (and sides) the contact involves
@@ -355,7 +356,7 @@ def simulate(
     init = _Carry(
         s=zero, t_hi=t0, t_lo=jnp.zeros_like(t0), y=x0, h=h0,
         solver_state=solver_state0, controller_state=controller_state0,
-        made_jump=jnp.array(False), restart=restart0,
+        made_jump=jnp.array(False), restart=restart0, flight_scale=jnp.max(jnp.abs(x0)),
         landing=jnp.array(False), target=zero,
         pending=jnp.zeros(mask_shape, bool), touch=jnp.zeros(mask_shape, bool),
         boundary=jnp.zeros(mask_shape, bool), h_after=h0,
@@ -442,7 +443,7 @@ def simulate(
             boundary = jnp.zeros(mask_shape, bool)
             for i, piece in enumerate(pieces):
                 for k, (g, e) in enumerate(ends[i]):
-                    x_scale = jnp.maximum(jnp.max(jnp.abs(c.y)), jnp.max(jnp.abs(y1)))
+                    x_scale = jnp.maximum(c.flight_scale, jnp.max(jnp.abs(y1)))
                     floor = gap_floor(piece.gap, abs_time(sb, c.t_hi, c.t_lo), y1, args_, x_scale)
                     contact = locate(g, sa, sb, e, c.restart[i], floor)
                     t_abs = abs_time(contact.time, c.t_hi, c.t_lo)
@@ -541,6 +542,9 @@ def simulate(
             ),
             made_jump=pick(False, landed.made_jump, c.made_jump, c.made_jump),
             restart=jnp.where(accept_free, False, jnp.where(c.landing, landed.restart, c.restart)),
+            flight_scale=jnp.where(
+                accept_free, jnp.maximum(c.flight_scale, jnp.max(jnp.abs(y1))), landed.flight_scale
+            ),
             landing=go_land,
             target=jnp.where(go_land, first, c.target),
             pending=jnp.where(go_land, pending, c.pending),
@@ -572,6 +576,10 @@ def simulate(
         args_ = args
         t_hi, t_lo = c.t_hi, c.t_lo
         lands = c.landing & ~c.done
+        # Round-off in the event state is relative to the magnitudes met in this flight, not
+        # to the (possibly tiny) state at the contact: a touch at x ≈ 0, v ≈ 0 still carries
+        # the absolute error of the flight that led there.
+        flight_scale = jnp.maximum(c.flight_scale, jnp.max(jnp.abs(y_star)))
         # One Newton step on the time, with the true vector field: corrects the
         # interpolant's root to the method's accuracy and carries d(time)/d(params) by
         # the implicit function theorem. Driven by the first pending surface.
@@ -609,7 +617,7 @@ def simulate(
                     c.touch[i, k], int(kinds[2]), jnp.where(c.boundary[i, k], int(kinds[1]), int(kinds[0]))
                 )
                 rows.append((apply, x, x_new, jnp.asarray(i), kind))
-                x_scale = jnp.maximum(jnp.max(jnp.abs(x)), jnp.max(jnp.abs(x_new)))
+                x_scale = jnp.maximum(flight_scale, jnp.max(jnp.abs(x_new)))
                 if piece.check_jump_side:
                     g_new, gd_new, gdd_new = slopes_at(piece, sign, s_event, x_new, t_hi, t_lo, args_)
                     floor = gap_floor(piece.gap, t_event, x_new, args_, x_scale)
@@ -624,7 +632,7 @@ def simulate(
         # Restart guard and sticking test at the post-impact state.
         restart = []
         stuck = jnp.array(False)
-        x_scale = jnp.maximum(jnp.max(jnp.abs(y_event)), jnp.max(jnp.abs(x_post)))
+        x_scale = jnp.maximum(flight_scale, jnp.max(jnp.abs(x_post)))
         for i, piece in enumerate(pieces):
             on, floor = on_surface(piece, t_event, x_post, args_, x_scale)
             restart.append(on)
@@ -666,7 +674,7 @@ def simulate(
         keep_old = lambda new, old: jnp.where(lands, new, old)  # noqa: E731
         small = eqx.tree_at(
             lambda z: (
-                z.s, z.t_hi, z.t_lo, z.y, z.h, z.made_jump, z.restart, z.num_impacts,
+                z.s, z.t_hi, z.t_lo, z.y, z.h, z.made_jump, z.restart, z.flight_scale, z.num_impacts,
                 z.intervals, z.zeno_time, z.status, z.done, z.t_final, z.x_final,
             ),
             c,
@@ -678,6 +686,7 @@ def simulate(
                 keep_old(c.h_after, c.h),
                 keep_old(True, c.made_jump),
                 keep_old(restart, c.restart),
+                keep_old(jnp.max(jnp.abs(jnp.where(finite, x_post, y_event))), c.flight_scale),
                 keep_old(num_impacts, c.num_impacts),
                 keep_old(intervals, c.intervals),
                 keep_old(zeno_time, c.zeno_time),
