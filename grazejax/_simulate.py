@@ -34,15 +34,13 @@ import equinox.internal as eqxi
 import jax
 import jax.lax as lax
 import jax.numpy as jnp
-import optimistix as optx
 
-from ._events import closed_piece, gap_floor, is_candidate, locate, step_ends
+from ._events import FLOOR_ULPS, closed_piece, gap_floor, is_candidate, locate, step_ends
 from ._roots import safe_divide
 from ._scene import Scene, Surface
 from ._solution import Solution
 from ._status import ImpactKind, Status
 from ._validate import validate_inputs
-
 
 # --------------------------------------------------------------------------------------
 # Internal surfaces: the forward pieces, or their images in backward time.
@@ -58,20 +56,54 @@ class _Piece:
     inside: Callable  # inside(t, x, args) -> (in closed piece, on boundary)
     signs: tuple[int, ...]  # +1: impact on downward crossings; (+1, -1): either way
     check_jump_side: bool  # forward, impenetrable surfaces: J must land on the free side
+    floor: Callable  # floor(t, x, args, x_scale): the contact floor of `gap` (see gap_floor)
 
 
 def _newton_inverse(surface: Surface) -> Callable:
-    """J⁻¹ by Newton's method, differentiable by the implicit function theorem."""
-    solver = optx.Newton(rtol=1e-13, atol=1e-13)
+    """J⁻¹ by Newton's method, with a hand-written implicit-function-theorem JVP.
 
-    def inverse(t, x, args):
-        def residual(z, x_):
-            return surface.jump(t, z, args) - x_
+    Why not `optx.root_find`: its implicit differentiation calls `lineax.linear_solve`,
+    which *raises* on a singular Jacobian (a jump that is not invertible, e.g. v → 0·v),
+    killing a whole vmapped batch. Here a failed or singular solve gives a NaN preimage —
+    no impact is detected through it — and never an exception.
+    """
+
+    def jump_jacobian(t, z, args):
+        return jax.jacfwd(lambda zz: surface.jump(t, zz, args))(z)
+
+    def solve(t, x, args):
+        t, x, args = jax.lax.stop_gradient((t, x, args))
+
+        def cond(carry):
+            z, it, converged = carry
+            return (it < 50) & ~converged & jnp.all(jnp.isfinite(z))
+
+        def body(carry):
+            z, it, _ = carry
+            step = jnp.linalg.solve(jump_jacobian(t, z, args), surface.jump(t, z, args) - x)
+            z = z - step
+            converged = jnp.max(jnp.abs(step)) <= 1e-14 * (1 + jnp.max(jnp.abs(z)))
+            return z, it + 1, converged
 
         guess = 2 * x - surface.jump(t, x, args)
-        sol = optx.root_find(residual, solver, guess, args=x, throw=False, max_steps=64)
-        ok = sol.result == optx.RESULTS.successful
-        return jnp.where(ok, sol.value, jnp.nan)
+        z, _, _ = lax.while_loop(cond, body, (guess, jnp.array(0), jnp.array(False)))
+        residual = jnp.max(jnp.abs(surface.jump(t, z, args) - x))
+        ok = jnp.all(jnp.isfinite(z)) & (residual <= 1e-10 * (1 + jnp.max(jnp.abs(x))))
+        return jnp.where(ok, z, jnp.nan)
+
+    @jax.custom_jvp
+    def inverse(t, x, args):
+        return solve(t, x, args)
+
+    @inverse.defjvp
+    def inverse_jvp(primals, tangents):
+        # J(t, z, args) = x  ⇒  D_zJ dz = dx − D_tJ dt − D_argsJ dargs.
+        t, x, args = primals
+        dt, dx, dargs = tangents
+        z = solve(t, x, args)
+        _, dJ = jax.jvp(lambda tt, aa: surface.jump(tt, z, aa), (t, args), (dt, dargs))
+        dz = jnp.linalg.solve(jump_jacobian(t, z, args), dx - dJ)
+        return z, dz
 
     return inverse
 
@@ -80,7 +112,10 @@ def _forward_piece(surface: Surface) -> _Piece:
     def inside(t, x, args, tol):
         return closed_piece(surface.where, t, x, args, tol)
 
-    return _Piece(surface.phi, surface.jump, inside, (1,), surface.impenetrable)
+    def floor(t, x, args, x_scale):
+        return gap_floor(surface.phi, t, x, args, x_scale)
+
+    return _Piece(surface.phi, surface.jump, inside, (1,), surface.impenetrable, floor)
 
 
 def _backward_piece(surface: Surface, vector_field) -> _Piece:
@@ -104,7 +139,13 @@ def _backward_piece(surface: Surface, vector_field) -> _Piece:
         ok = in_piece & (approach <= scale) & jnp.all(jnp.isfinite(z))
         return ok, on_boundary
 
-    return _Piece(gap, inverse, inside, (1, -1), False)
+    def floor(t, x, args, x_scale):
+        # The floor of Φ at the preimage z: no derivative through the Newton inverse,
+        # whose Jacobian may be singular where the jump is not invertible.
+        z = jax.lax.stop_gradient(inverse(t, x, args))
+        return gap_floor(surface.phi, t, z, args, x_scale)
+
+    return _Piece(gap, inverse, inside, (1, -1), False, floor)
 
 
 # --------------------------------------------------------------------------------------
@@ -122,7 +163,7 @@ class _Carry(eqx.Module):
     controller_state: Any
     made_jump: Any
     restart: Any  # bool[m]: the flight starts on surface i (guard its first step)
-    flight_scale: Any  # max ‖x‖∞ over the current flight: the scale of its round-off
+    flight_scale: Any  # max |x_k| over the current flight, per coordinate: its round-off scale
     landing: Any  # bool: the next step lands exactly on a located contact
     target: Any  # local time of that contact
     pending: Any  # bool[m, signs]: which surfaces (and sides) the contact involves
@@ -229,8 +270,9 @@ def simulate(
     a surface (after a jump or at x0) does not impact at its start time. Excursions into
     Φ < 0 shorter than a solver step are found by an in-step minimum search: an excursion of
     depth δ > floor is an impact, a miss by more than the floor is not, and contacts within
-    the floor (64 ulps of Σ|∂Φ/∂x_k|·‖x‖∞ + |∂Φ/∂t|·|t|, ~1e-14 for unit-size states)
-    are reported as grazing (γ). Contacts on several pieces within ~1e3 ulps of each other
+    the floor (64 ulps of Σ_k |∂Φ/∂x_k|·max|x_k| over the flight + |∂Φ/∂t|·|t| + h·|ġ| for a
+    step of length h; ~1e-14 for unit-size states) are reported as grazing (γ).
+    Contacts on several pieces within ~1e3 ulps of each other
     are simultaneous: all are applied, in the order of `scene.surfaces`, each only if its
     surface is still approached after the previous jumps.
 
@@ -334,8 +376,14 @@ def simulate(
         )
         return g, gd, gdd
 
-    def on_surface(piece, t, y, args_, x_scale=None):
-        floor = gap_floor(piece.gap, t, y, args_, x_scale)
+    def on_surface(piece, t, y, args_, x_scale=None, step_ulps=0.0):
+        floor = piece.floor(t, y, args_, x_scale)
+        if piece.signs:  # the step-length term, with the slope along the true field
+            slope = jax.jvp(
+                lambda tt, yy: piece.gap(tt, yy, args_), (t, y),
+                (sigma * jnp.ones_like(t), sigma * f(t, y, args_)),
+            )[1]
+            floor = floor + step_ulps * jax.lax.stop_gradient(jnp.abs(slope))
         g = piece.gap(t, y, args_)
         return (jnp.abs(g) <= floor) & jnp.isfinite(g), floor
 
@@ -351,12 +399,12 @@ def simulate(
     else:
         save_xs0 = save_index0 = None
 
-    finite0 = jnp.all(jnp.isfinite(x0)) & _tree_all_finite(args)
+    finite0 = jnp.all(jnp.isfinite(x0)) & _tree_all_finite(args) & jnp.isfinite(t0) & ~jnp.isnan(t1)
     mask_shape = (m, max_signs)
     init = _Carry(
         s=zero, t_hi=t0, t_lo=jnp.zeros_like(t0), y=x0, h=h0,
         solver_state=solver_state0, controller_state=controller_state0,
-        made_jump=jnp.array(False), restart=restart0, flight_scale=jnp.max(jnp.abs(x0)),
+        made_jump=jnp.array(False), restart=restart0, flight_scale=jnp.abs(x0),
         landing=jnp.array(False), target=zero,
         pending=jnp.zeros(mask_shape, bool), touch=jnp.zeros(mask_shape, bool),
         boundary=jnp.zeros(mask_shape, bool), h_after=h0,
@@ -443,8 +491,15 @@ def simulate(
             boundary = jnp.zeros(mask_shape, bool)
             for i, piece in enumerate(pieces):
                 for k, (g, e) in enumerate(ends[i]):
-                    x_scale = jnp.maximum(c.flight_scale, jnp.max(jnp.abs(y1)))
-                    floor = gap_floor(piece.gap, abs_time(sb, c.t_hi, c.t_lo), y1, args_, x_scale)
+                    x_scale = jnp.maximum(c.flight_scale, jnp.abs(y1))
+                    # Round-off of a step also grows with its length: add h·max|ġ| (a
+                    # long step of an exactly integrated flow carries ~100s of ulps).
+                    e = ends[i][k][1]
+                    step_term = FLOOR_ULPS * eps * (sb - sa) * jnp.maximum(
+                        jnp.abs(e.slope_start), jnp.abs(e.slope_end)
+                    )
+                    floor = piece.floor(abs_time(sb, c.t_hi, c.t_lo), y1, args_, x_scale)
+                    floor = floor + jax.lax.stop_gradient(step_term)
                     contact = locate(g, sa, sb, e, c.restart[i], floor)
                     t_abs = abs_time(contact.time, c.t_hi, c.t_lo)
                     inside, on_boundary = piece.inside(t_abs, y_of(contact.time), args_, state_tol)
@@ -469,7 +524,8 @@ def simulate(
             found, times, touch, boundary = no_search()
         found = found & candidate
         event = jnp.any(found)
-        first = jax.lax.stop_gradient(jnp.min(times))
+        # (A scene without surfaces is a plain ODE solve: no contact, ever.)
+        first = jax.lax.stop_gradient(jnp.min(times)) if m > 0 else jnp.array(jnp.inf, dtype)
         simultaneous = 1e3 * eps * (jnp.abs(first) + (sb - sa))
         pending = found & (times <= first + simultaneous)
 
@@ -543,14 +599,20 @@ def simulate(
             made_jump=pick(False, landed.made_jump, c.made_jump, c.made_jump),
             restart=jnp.where(accept_free, False, jnp.where(c.landing, landed.restart, c.restart)),
             flight_scale=jnp.where(
-                accept_free, jnp.maximum(c.flight_scale, jnp.max(jnp.abs(y1))), landed.flight_scale
+                accept_free, jnp.maximum(c.flight_scale, jnp.abs(y1)), landed.flight_scale
             ),
             landing=go_land,
             target=jnp.where(go_land, first, c.target),
             pending=jnp.where(go_land, pending, c.pending),
             touch=jnp.where(go_land, touch & pending, c.touch),
             boundary=jnp.where(go_land, boundary & pending, c.boundary),
-            h_after=jnp.where(go_land, jnp.maximum(sb - sa, h_next), c.h_after),
+            # After the impact, restart no larger than twice the flight just ended: the
+            # dynamics changed, and an exactly integrated flow would otherwise grow the
+            # step 10x per flight (to 1e9 with t1 = inf) until the event search loses
+            # its precision.
+            h_after=jnp.where(
+                go_land, jnp.minimum(jnp.maximum(sb - sa, h_next), 2 * first + h_min_at(first)), c.h_after
+            ),
             num_impacts=landed.num_impacts,
             log_t=landed.log_t, log_pre=landed.log_pre, log_post=landed.log_post,
             log_surface=landed.log_surface, log_kind=landed.log_kind,
@@ -579,7 +641,9 @@ def simulate(
         # Round-off in the event state is relative to the magnitudes met in this flight, not
         # to the (possibly tiny) state at the contact: a touch at x ≈ 0, v ≈ 0 still carries
         # the absolute error of the flight that led there.
-        flight_scale = jnp.maximum(c.flight_scale, jnp.max(jnp.abs(y_star)))
+        flight_scale = jnp.maximum(c.flight_scale, jnp.abs(y_star))
+        # ... and to the length of the landing step, as in the detection floor.
+        step_ulps = FLOOR_ULPS * eps * jax.lax.stop_gradient(s_star - sa)
         # One Newton step on the time, with the true vector field: corrects the
         # interpolant's root to the method's accuracy and carries d(time)/d(params) by
         # the implicit function theorem. Driven by the first pending surface.
@@ -589,7 +653,10 @@ def simulate(
         for i, piece in enumerate(pieces):
             for k, sign in enumerate(piece.signs):
                 g, gd, _ = slopes_at(piece, sign, s_star, y_star, t_hi, t_lo, args_)
-                width = jax.lax.stop_gradient(s_star - sa)
+                # Accept corrections up to 1% of the landing step, but never less than
+                # ~1e-6 of the flight: a step can end ulps before the contact, and the
+                # next one then lands after a few ulps of width.
+                width = jax.lax.stop_gradient(jnp.maximum(s_star - sa, 1e-6 * s_star))
                 use = c.pending[i, k] & ~c.touch[i, k] & ~chosen
                 ok = use & (jnp.abs(jax.lax.stop_gradient(g)) <= 1e-2 * jnp.abs(jax.lax.stop_gradient(gd)) * width) & (gd != 0)
                 delta = jnp.where(ok, -safe_divide(g, gd, ok), delta)
@@ -617,10 +684,12 @@ def simulate(
                     c.touch[i, k], int(kinds[2]), jnp.where(c.boundary[i, k], int(kinds[1]), int(kinds[0]))
                 )
                 rows.append((apply, x, x_new, jnp.asarray(i), kind))
-                x_scale = jnp.maximum(flight_scale, jnp.max(jnp.abs(x_new)))
+                x_scale = jnp.maximum(flight_scale, jnp.abs(x_new))
                 if piece.check_jump_side:
                     g_new, gd_new, gdd_new = slopes_at(piece, sign, s_event, x_new, t_hi, t_lo, args_)
-                    floor = gap_floor(piece.gap, t_event, x_new, args_, x_scale)
+                    floor = piece.floor(t_event, x_new, args_, x_scale) + step_ulps * jnp.abs(
+                        jax.lax.stop_gradient(gd)
+                    )
                     moving_in = (gd_new < 0) & (gd_new**2 > 2 * jnp.abs(gdd_new) * floor)
                     bad_side = bad_side | (apply & ((g_new < -floor) | ((g_new <= floor) & moving_in)))
                 x = jnp.where(apply, x_new, x)
@@ -632,9 +701,9 @@ def simulate(
         # Restart guard and sticking test at the post-impact state.
         restart = []
         stuck = jnp.array(False)
-        x_scale = jnp.maximum(flight_scale, jnp.max(jnp.abs(x_post)))
+        x_scale = jnp.maximum(flight_scale, jnp.abs(x_post))
         for i, piece in enumerate(pieces):
-            on, floor = on_surface(piece, t_event, x_post, args_, x_scale)
+            on, floor = on_surface(piece, t_event, x_post, args_, x_scale, step_ulps)
             restart.append(on)
             for sign in piece.signs:
                 _, gd, gdd = slopes_at(piece, sign, jnp.zeros_like(s_event), x_post, t_event_hi, t_event_lo, args_)
@@ -686,7 +755,7 @@ def simulate(
                 keep_old(c.h_after, c.h),
                 keep_old(True, c.made_jump),
                 keep_old(restart, c.restart),
-                keep_old(jnp.max(jnp.abs(jnp.where(finite, x_post, y_event))), c.flight_scale),
+                keep_old(jnp.abs(jnp.where(finite, x_post, y_event)), c.flight_scale),
                 keep_old(num_impacts, c.num_impacts),
                 keep_old(intervals, c.intervals),
                 keep_old(zeno_time, c.zeno_time),
