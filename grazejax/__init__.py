@@ -8,10 +8,37 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 
-from ._scene import Scene as Scene, Surface as Surface  # noqa: E402
-from ._simulate import simulate as simulate  # noqa: E402
-from ._solution import Solution as Solution  # noqa: E402
-from ._sweep import sweep as sweep  # noqa: E402
-from ._status import ImpactKind as ImpactKind, Status as Status  # noqa: E402
+from ._conditions import ConditionReport as ConditionReport
+from ._conditions import ConditionResult as ConditionResult
+from ._conditions import check_conditions as check_conditions
+from ._linearize import A2Diagnostic as A2Diagnostic
+from ._linearize import ClosedForm as ClosedForm
+from ._linearize import DerivativeStatus as DerivativeStatus
+from ._linearize import FlowJacobian as FlowJacobian
+from ._linearize import Meeting as Meeting
+from ._linearize import OneSidedLimit as OneSidedLimit
+from ._linearize import OneSidedLinearization as OneSidedLinearization
+from ._linearize import PointType as PointType
+from ._linearize import Saltation as Saltation
+from ._linearize import ScalarGradient as ScalarGradient
+from ._linearize import Variational as Variational
+from ._linearize import WMap as WMap
+from ._linearize import a2_diagnostic as a2_diagnostic
+from ._linearize import classify_point as classify_point
+from ._linearize import closed_form_linearization as closed_form_linearization
+from ._linearize import flow_jacobian as flow_jacobian
+from ._linearize import meeting_time as meeting_time
+from ._linearize import one_sided_jacobians as one_sided_jacobians
+from ._linearize import saltation_matrix as saltation_matrix
+from ._linearize import scalar_gradient as scalar_gradient
+from ._linearize import variational_transition as variational_transition
+from ._linearize import w_map as w_map
+from ._scene import Scene as Scene
+from ._scene import Surface as Surface
+from ._simulate import simulate as simulate
+from ._solution import Solution as Solution
+from ._status import ImpactKind as ImpactKind
+from ._status import Status as Status
+from ._sweep import sweep as sweep
 
 __version__ = "0.1.0"

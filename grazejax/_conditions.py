@@ -1,0 +1,668 @@
+r"""Numerical checks of the paper's standing conditions (C1), (C2), (C4)–(C7).
+
+Akhmet & Kıvılcım (§2) assume, for Φ: D^r → R, Γ = Φ⁻¹(0), J: Γ^r → D^r, Γ̃ = J(Γ),
+Φ̃ = Φ ∘ J⁻¹ and J̃ = J⁻¹ on Γ̃ (quoted as printed; ∂Γ is the boundary of the piece):
+
+- (C1) ∇Φ(x) ≠ 0 for all x ∈ Γ;
+- (C2) J ∈ C¹(Γ^r) and det[∂J(x)/∂x] ≠ 0 for all x ∈ Γ^r \ ∂Γ;
+- (C3) Γ ∩ Γ̃ ⊆ ∂Γ ∩ ∂Γ̃ (not checked here);
+- (C4) ⟨∇Φ(x), f(x)⟩ ≠ 0 if x ∈ Γ \ ∂Γ;
+- (C5) ⟨∇Φ̃(x), f(x)⟩ ≠ 0 if x ∈ Γ̃ \ ∂Γ̃;
+- (C6) J(x) = x for all x ∈ ∂Γ;
+- (C7) J̃(x) = x for all x ∈ ∂Γ̃.
+
+(C8)–(C10) (boundedness, continuation, the group property) are statements about whole
+solutions and are not sampled here.
+
+A sampling test can find violations but cannot prove a condition: a condition "holds"
+below means "no violation was found at the samples, nor between neighbouring samples".
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._linearize import _inverse_jump
+from ._scene import Scene
+
+STATEMENTS = {
+    "C1": "∇Φ(x) ≠ 0 for all x ∈ Γ",
+    "C2": "J ∈ C¹(Γ^r) and det[∂J/∂x] ≠ 0 for all x ∈ Γ^r \\ ∂Γ",
+    "C4": "⟨∇Φ(x), f(x)⟩ ≠ 0 if x ∈ Γ \\ ∂Γ",
+    "C5": "⟨∇Φ̃(x), f(x)⟩ ≠ 0 if x ∈ Γ̃ \\ ∂Γ̃ (Γ̃ = J(Γ), Φ̃ = Φ ∘ J⁻¹)",
+    "C6": "J(x) = x for all x ∈ ∂Γ",
+    "C7": "J̃(x) = x for all x ∈ ∂Γ̃ (J̃ = J⁻¹ on Γ̃)",
+}
+
+
+class ConditionResult(eqx.Module):
+    """One condition on one surface piece.
+
+    **Fields:**
+
+    - `condition`: `"C1"`, `"C2"`, `"C4"`, ..., `"C7"`.
+    - `surface`, `surface_name`: the piece's index and label.
+    - `holds`: True (no violation found), False (violated), or None (not testable, e.g.
+      C5 where J is not invertible).
+    - `statement`: the condition as the paper writes it.
+    - `detail`: what was tested and what was found, in words.
+    - `points`: up to five violating points `(t, x_1, ..., x_n)`, as a NumPy array.
+    """
+
+    condition: str
+    surface: int
+    surface_name: str
+    holds: bool | None
+    statement: str
+    detail: str
+    points: np.ndarray
+
+
+class ConditionReport(eqx.Module):
+    """Result of [`grazejax.check_conditions`][]; `str(report)` lists violations first.
+
+    **Fields:** `results` (a tuple of [`grazejax.ConditionResult`][]), `samples` (the
+    number drawn per surface), `box` (the sampling box, shape `(n, 2)`), `t_range`.
+    """
+
+    results: tuple[ConditionResult, ...]
+    samples: int
+    box: np.ndarray
+    t_range: tuple[float, float]
+
+    @property
+    def ok(self) -> bool:
+        """True if no tested condition is violated (untestable ones do not count)."""
+        return all(r.holds is not False for r in self.results)
+
+    @property
+    def violations(self) -> tuple[ConditionResult, ...]:
+        return tuple(r for r in self.results if r.holds is False)
+
+    def holds(self, condition: str, surface: int | None = None) -> bool | None:
+        """Whether `condition` holds on `surface` (or on every surface if None)."""
+        found = [
+            r.holds
+            for r in self.results
+            if r.condition == condition and (surface is None or r.surface == surface)
+        ]
+        if not found:
+            raise KeyError(f"no result for {condition} on surface {surface}")
+        if any(h is False for h in found):
+            return False
+        if any(h is None for h in found):
+            return None
+        return True
+
+    def __str__(self) -> str:
+        bad = self.violations
+        head = (
+            f"Conditions (C1), (C2), (C4)-(C7): {len(bad)} violation(s) "
+            f"({self.samples} samples per surface in the box {self.box.tolist()}, t in {list(self.t_range)})"
+        )
+        lines = [head]
+        order = sorted(self.results, key=lambda r: {False: 0, None: 1, True: 2}[r.holds])
+        for r in order:
+            mark = {False: "VIOLATED", None: "untested", True: "ok"}[r.holds]
+            lines.append(f"  ({r.condition}) {r.surface_name}: {mark} - {r.statement}")
+            lines.append(f"      {r.detail}")
+            if r.holds is False and len(r.points):
+                for p in r.points:
+                    lines.append(
+                        f"      at t = {p[0]:.6g}, x = {np.array2string(p[1:], precision=8)}"
+                    )
+        return "\n".join(lines)
+
+
+# --------------------------------------------------------------------------------------
+# Sampling the pieces (jit-compiled per scene and surface)
+# --------------------------------------------------------------------------------------
+
+
+def _project(phi, t, x, args):
+    """Newton along the gradient onto Φ(t, ·) = 0 (minimum-norm step, 60 iterations)."""
+
+    def step(_, x_):
+        g, grad = jax.value_and_grad(phi, argnums=1)(t, x_, args)
+        norm2 = grad @ grad
+        ok = norm2 > 0
+        return x_ - jnp.where(ok, g / jnp.where(ok, norm2, 1.0), 0.0) * grad
+
+    return jax.lax.fori_loop(0, 60, step, x)
+
+
+@eqx.filter_jit
+def _sample_surface(scene: Scene, i: int, ts, xs, args):
+    """Project the box samples onto Φ = 0; also ‖∇Φ‖ at the box samples (C1's scale)."""
+    phi = scene.surfaces[i].phi
+    projected = jax.vmap(lambda t, x: _project(phi, t, x, args))(ts, xs)
+    grad_norms = jax.vmap(lambda t, x: jnp.linalg.norm(jax.grad(phi, argnums=1)(t, x, args)))(
+        ts, xs
+    )
+    return projected, grad_norms
+
+
+@eqx.filter_jit
+def _evaluate(scene: Scene, i: int, ts, xs, args, delta):
+    surface = scene.surfaces[i]
+    f = scene.vector_field
+
+    def one(t, x):
+        phi = surface.phi(t, x, args)
+        phi_t, grad = jax.jacfwd(surface.phi, argnums=(0, 1))(t, x, args)
+        fx = f(t, x, args)
+        x_post = surface.jump(t, x, args)
+        J_t, DJ = jax.jacfwd(surface.jump, argnums=(0, 1))(t, x, args)
+        f_post = f(t, x_post, args)
+        # Second derivatives of J: a kink of J between two neighbouring samples shows as a
+        # jump of DJ that the trapezoid rule with D²J cannot explain (see _check_surface).
+        D2J = jax.jacfwd(jax.jacfwd(surface.jump, argnums=1), argnums=1)(t, x, args)
+        if surface.where is None:
+            inside = jnp.array(True)
+            near_boundary = jnp.array(False)
+        else:
+            offsets = jnp.concatenate([jnp.diag(delta), -jnp.diag(delta)], axis=0)
+            inside = jnp.asarray(surface.where(t, x, args), bool)
+            around = jax.vmap(lambda dx: jnp.asarray(surface.where(t, x + dx, args), bool))(offsets)
+            near_boundary = jnp.any(around != inside)
+        return dict(
+            phi=phi,
+            phi_t=phi_t,
+            grad=grad,
+            f=fx,
+            x_post=x_post,
+            J_t=J_t,
+            DJ=DJ,
+            D2J=D2J,
+            f_post=f_post,
+            inside=inside,
+            near_boundary=near_boundary,
+        )
+
+    return jax.vmap(one)(ts, xs)
+
+
+@eqx.filter_jit
+def _bisect_segments(scene: Scene, i: int, kind: str, ta, xa, tb, xb, args):
+    """Locate a zero of a sampled quantity between two surface samples of opposite sign.
+
+    Bisection along the segment, each midpoint projected back onto Γ_i. `kind` is
+    "rate" (C4), "image_rate" (C5), "det" (C2) or "where" (∂Γ: the piece's boundary).
+    """
+    surface = scene.surfaces[i]
+    f = scene.vector_field
+
+    def value(t, x):
+        if kind == "where":
+            return jnp.where(jnp.asarray(surface.where(t, x, args), bool), 1.0, -1.0)
+        phi_t, grad = jax.jacfwd(surface.phi, argnums=(0, 1))(t, x, args)
+        if kind == "rate":
+            return phi_t + grad @ f(t, x, args)
+        J_t, DJ = jax.jacfwd(surface.jump, argnums=(0, 1))(t, x, args)
+        if kind == "det":
+            return jnp.linalg.det(DJ)
+        w = jnp.linalg.solve(DJ.T, grad)
+        return phi_t + w @ (f(t, surface.jump(t, x, args), args) - J_t)
+
+    def one(ta_, xa_, tb_, xb_):
+        va = value(ta_, xa_)
+
+        def step(_, carry):
+            ta_, xa_, tb_, xb_, va = carry
+            tm = 0.5 * (ta_ + tb_)
+            xm = _project(surface.phi, tm, 0.5 * (xa_ + xb_), args)
+            vm = value(tm, xm)
+            same = jnp.sign(vm) == jnp.sign(va)
+            ta_, xa_, va = (
+                jnp.where(same, tm, ta_),
+                jnp.where(same, xm, xa_),
+                jnp.where(same, vm, va),
+            )
+            tb_, xb_ = jnp.where(same, tb_, tm), jnp.where(same, xb_, xm)
+            return ta_, xa_, tb_, xb_, va
+
+        ta_, xa_, tb_, xb_, _ = jax.lax.fori_loop(0, 50, step, (ta_, xa_, tb_, xb_, va))
+        tm, xm = (
+            0.5 * (ta_ + tb_),
+            _project(surface.phi, 0.5 * (ta_ + tb_), 0.5 * (xa_ + xb_), args),
+        )
+        inside = (
+            jnp.array(True)
+            if surface.where is None
+            else jnp.asarray(surface.where(tm, xm, args), bool)
+        )
+        return tm, xm, inside
+
+    return jax.vmap(one)(ta, xa, tb, xb)
+
+
+@eqx.filter_jit
+def _inverse_at(scene: Scene, i: int, ts, ys, args):
+    surface = scene.surfaces[i]
+    return jax.vmap(lambda t, y: _inverse_jump(surface, t, y, args))(ts, ys)
+
+
+@eqx.filter_jit
+def _critical_points(scene: Scene, i: int, ts, xs, args):
+    """Newton on ∇Φ(t, x) = 0 (least squares steps) from the given starts."""
+    phi = scene.surfaces[i].phi
+
+    def one(t, x):
+        def step(_, x_):
+            grad = jax.grad(phi, argnums=1)(t, x_, args)
+            H = jax.hessian(phi, argnums=1)(t, x_, args)
+            dx, *_ = jnp.linalg.lstsq(H, grad)
+            return jnp.where(jnp.all(jnp.isfinite(dx)), x_ - dx, x_)
+
+        x_ = jax.lax.fori_loop(0, 40, step, x)
+        return x_, phi(t, x_, args), jax.grad(phi, argnums=1)(t, x_, args)
+
+    return jax.vmap(one)(ts, xs)
+
+
+# --------------------------------------------------------------------------------------
+# check_conditions
+# --------------------------------------------------------------------------------------
+
+
+def _neighbour_pairs(points, k):
+    """Index pairs (a, b), a < b, with b among the k nearest neighbours of a."""
+    m = len(points)
+    if m < 2:
+        return np.zeros((0, 2), int)
+    k = min(k, m - 1)
+    d2 = np.sum((points[:, None, :] - points[None, :, :]) ** 2, axis=-1)
+    np.fill_diagonal(d2, np.inf)
+    nearest = np.argpartition(d2, k - 1, axis=1)[:, :k]
+    pairs = np.stack([np.repeat(np.arange(m), k), nearest.reshape(-1)], axis=1)
+    pairs = np.sort(pairs, axis=1)
+    return np.unique(pairs, axis=0)
+
+
+def _dedupe(points, scale):
+    points = np.asarray(points, float)
+    if points.size == 0:
+        return points.reshape(0, points.shape[-1] if points.ndim == 2 else 0)
+    kept = []
+    for p in points:
+        if all(np.max(np.abs(p - q)) > 1e-6 * scale for q in kept):
+            kept.append(p)
+    return np.array(kept)
+
+
+def _sign_change_zeros(scene, i, kind, tx, values, mask, pairs, args, scale):
+    """Zeros of `values` between neighbouring samples (both in `mask`) of opposite sign."""
+    if len(pairs) == 0:
+        return np.zeros((0, tx.shape[1]))
+    a, b = pairs[:, 0], pairs[:, 1]
+    keep = mask[a] & mask[b] & (np.sign(values[a]) * np.sign(values[b]) < 0)
+    a, b = a[keep], b[keep]
+    if len(a) == 0:
+        return np.zeros((0, tx.shape[1]))
+    # One representative pair per 16: enough to locate each zero, bounded cost.
+    if len(a) > 64:
+        a, b = a[:: len(a) // 64], b[:: len(b) // 64]
+    tm, xm, inside = _bisect_segments(
+        scene,
+        i,
+        kind,
+        jnp.asarray(tx[a, 0]),
+        jnp.asarray(tx[a, 1:]),
+        jnp.asarray(tx[b, 0]),
+        jnp.asarray(tx[b, 1:]),
+        args,
+    )
+    found = np.concatenate([np.asarray(tm)[:, None], np.asarray(xm)], axis=1)
+    if kind != "where":
+        found = found[np.asarray(inside)]
+    return _dedupe(found, scale)
+
+
+def check_conditions(
+    scene: Scene,
+    args=None,
+    *,
+    samples: int = 1000,
+    key=None,
+    box=None,
+    t_range: tuple[float, float] = (0.0, 0.0),
+    rtol: float = 1e-9,
+) -> ConditionReport:
+    r"""Test the paper's (C1), (C2), (C4)–(C7) numerically on every surface piece.
+
+    **How each piece is sampled.** `samples` points are drawn uniformly in `box` (and
+    times uniformly in `t_range`) and projected onto {Φ_i(t, ·) = 0} by Newton steps
+    along ∇Φ_i; points that converge inside the box are kept and split by `where_i` into
+    the piece Γ_i and the rest of the zero set. The boundary ∂Γ_i is located by
+    bisection (with projection) between neighbouring samples on either side of `where_i`;
+    a sample is *interior* if `where_i` does not change within δ = 1e-6 of the box size.
+    "Neighbouring" means among each sample's 6 nearest samples.
+
+    **How each condition is tested** (a violation is reported with its location):
+
+    - (C1) ∇Φ ≠ 0 on Γ: ‖∇Φ‖ > `rtol`·(median ‖∇Φ‖) at every sample of Γ_i; and Newton
+      on ∇Φ = 0 from the 8 samples of smallest ‖∇Φ‖: a critical point of Φ on Γ_i is a
+      violation.
+    - (C2) J ∈ C¹ and det DJ ≠ 0 off ∂Γ: at interior samples DJ is finite; between
+      neighbouring interior samples a, b, DJ(b) − DJ(a) agrees with the trapezoid rule
+      ½(D²J(a) + D²J(b))(b − a) to 1e-3·(1 + ‖DJ‖) (a kink of J, from `abs` or
+      `jnp.where`, leaves an O(1) jump of DJ); |det DJ| > `rtol`·‖DJ‖₂ⁿ, and det DJ does not
+      change sign between neighbouring interior samples (a sign change is bisected to the
+      zero). We sample Γ_i \ ∂Γ_i, not the neighbourhood Γ^r: J is only ever applied on Γ.
+    - (C4) ⟨∇Φ, f⟩ ≠ 0 on Γ \ ∂Γ: the approach rate ∂Φ/∂t + ∇Φ·f (the paper's ⟨∇Φ, f⟩
+      for autonomous scenes; the ∂Φ/∂t term is that of moving surfaces) is tested like
+      det DJ: |rate| > `rtol`·(‖∇Φ‖·‖f‖ + |∂Φ/∂t|) at interior samples (so an equilibrium
+      on Γ violates it), and no sign change between neighbouring interior samples.
+    - (C5) ⟨∇Φ̃, f⟩ ≠ 0 on Γ̃ \ ∂Γ̃: at y = J(x) for interior samples x, with
+      ∇Φ̃(y) = DJ(x)⁻ᵀ∇Φ(x) and ∂Φ̃/∂t = ∂Φ/∂t − ∇Φᵀ DJ⁻¹ ∂J/∂t, the rate
+      ∂Φ/∂t + ∇Φᵀ DJ(x)⁻¹ (f(t, J(x)) − ∂J/∂t) is tested as in (C4). Where DJ is singular
+      Φ̃ is undefined: (C5) is then reported untested (None).
+    - (C6) J = id on ∂Γ: ‖J(b) − b‖∞ ≤ 1e-8·(1 + ‖b‖∞) at every located boundary point b.
+    - (C7) J̃ = id on ∂Γ̃: at b̃ = J(b), J⁻¹(b̃) (from `inverse_jump`, else Newton) equals
+      b̃ to the same tolerance; untested where J⁻¹ cannot be solved.
+
+    A piece without `where`, or whose boundary is outside the box, has no boundary: (C6)
+    and (C7) then hold vacuously (the detail says so).
+
+    **Arguments:**
+
+    - `scene`, `args`: the scene and its parameters.
+    - `samples`: points drawn per surface (default 1000).
+    - `key`: a `jax.random` key (default `PRNGKey(0)`: reproducible).
+    - `box`: `(n, 2)` bounds of the region to test (default [−2, 2] in every coordinate,
+      the scale of the paper's examples, with n the smallest state size at which
+      `scene.vector_field` evaluates: pass `box` for a field written for any n).
+    - `t_range`: times to sample (default t = 0; give a period for non-autonomous scenes).
+    - `rtol`: relative tolerance of the "≠ 0" tests.
+
+    **Returns:** a [`grazejax.ConditionReport`][]; `print(report)` lists violations first,
+    `report.ok`, `report.holds("C4", 0)` and `report.violations` query it.
+
+    **Example:**
+
+    ```python
+    report = grazejax.check_conditions(examples.exnonaxial(), examples.exnonaxial_args())
+    print(report)   # (C2) det DJ ≡ 0; (C4) tangency at (1/√2, 1/√2), interior of Γ
+    ```
+    """
+    if not isinstance(scene, Scene):
+        raise TypeError(f"scene must be a grazejax.Scene, got {type(scene).__name__}")
+    if not isinstance(samples, (int, np.integer)) or samples < 10:
+        raise ValueError(f"samples must be an integer >= 10, got {samples!r}")
+    if len(scene.surfaces) == 0:
+        raise ValueError("the scene has no surfaces: nothing to check")
+    n = _state_size(scene, args)
+    box = np.array([[-2.0, 2.0]] * n) if box is None else np.asarray(box, float)
+    if box.shape != (n, 2) or np.any(box[:, 1] <= box[:, 0]):
+        raise ValueError(
+            f"box must have shape ({n}, 2) with lower < upper bounds, got {box.tolist()}"
+        )
+    t_lo, t_hi = (float(v) for v in t_range)
+    key = jax.random.PRNGKey(0) if key is None else key
+    if args is not None:
+        args = jax.tree.map(
+            lambda a: (
+                jnp.asarray(a) if isinstance(a, (float, int)) and not isinstance(a, bool) else a
+            ),
+            args,
+        )
+    width = box[:, 1] - box[:, 0]
+    scale = float(np.max(np.abs(box)))
+    delta = jnp.asarray(1e-6 * width)
+
+    results = []
+    for i in range(len(scene.surfaces)):
+        key, k_x, k_t = jax.random.split(key, 3)
+        xs = box[:, 0] + width * np.asarray(jax.random.uniform(k_x, (samples, n)))
+        ts = t_lo + (t_hi - t_lo) * np.asarray(jax.random.uniform(k_t, (samples,)))
+        results.extend(_check_surface(scene, i, ts, xs, args, box, delta, scale, rtol))
+    return ConditionReport(tuple(results), int(samples), box, (t_lo, t_hi))
+
+
+def _state_size(scene, args):
+    # The scene does not know n; find it from the vector field by trying small sizes.
+    for n in range(1, 33):
+        try:
+            out = jax.eval_shape(scene.vector_field, 0.0, jnp.zeros(n), args)
+        except Exception:  # noqa: BLE001 - wrong size: try the next one
+            continue
+        if getattr(out, "shape", None) == (n,):
+            return n
+    raise ValueError("could not determine the state dimension from scene.vector_field")
+
+
+def _result(condition, i, name, holds, detail, points=(), width=1):
+    points = np.asarray(points, float)
+    points = points.reshape(-1, points.shape[-1]) if points.size else np.zeros((0, width))
+    return ConditionResult(condition, i, name, holds, STATEMENTS[condition], detail, points[:5])
+
+
+def _check_surface(scene, i, ts, xs, args, box, delta, scale, rtol):
+    name = scene.surface_name(i)
+    surface = scene.surfaces[i]
+    projected, box_grad = (
+        np.asarray(v) for v in _sample_surface(scene, i, jnp.asarray(ts), jnp.asarray(xs), args)
+    )
+    ev = jax.tree.map(
+        np.asarray, _evaluate(scene, i, jnp.asarray(ts), jnp.asarray(projected), args, delta)
+    )
+    grad_norm = np.linalg.norm(ev["grad"], axis=1)
+    in_box = np.all(
+        (projected >= box[:, 0] - 1e-9 * scale) & (projected <= box[:, 1] + 1e-9 * scale), axis=1
+    )
+    converged = (
+        np.isfinite(ev["phi"])
+        & in_box
+        & (np.abs(ev["phi"]) <= 1e-10 * (1 + grad_norm * np.max(np.abs(projected), axis=1)))
+    )
+    on_piece = converged & ev["inside"]
+    interior = on_piece & ~ev["near_boundary"]
+    tx = np.concatenate([ts[:, None], projected], axis=1)
+    m = int(on_piece.sum())
+    if m == 0:
+        detail = "no point of this piece was found in the box: nothing tested"
+        return [
+            _result(c, i, name, None, detail, width=tx.shape[1])
+            for c in ("C1", "C2", "C4", "C5", "C6", "C7")
+        ]
+    pairs = _neighbour_pairs(
+        tx[converged] / np.concatenate([[max(1.0, abs(ts).max())], box[:, 1] - box[:, 0]]), 6
+    )
+    # Pair indices refer to the converged subset: map back to sample indices.
+    index = np.flatnonzero(converged)
+    pairs = index[pairs] if len(pairs) else pairs
+    out = []
+
+    # ---- (C1) ----
+    # The scale of ∇Φ is taken over the whole box, not over Γ: if ∇Φ vanishes on all of
+    # Γ (Φ = x³), its median on Γ is tiny too.
+    median = float(np.median(box_grad[np.isfinite(box_grad)]))
+    small = on_piece & (grad_norm <= rtol * median)
+    c1_points = list(tx[small])
+    starts = np.argsort(np.where(on_piece, grad_norm, np.inf))[: min(8, m)]
+    xc, phic, gradc = (
+        np.asarray(v)
+        for v in _critical_points(
+            scene, i, jnp.asarray(ts[starts]), jnp.asarray(projected[starts]), args
+        )
+    )
+    for t_, x_, p_, g_ in zip(ts[starts], xc, phic, gradc, strict=True):
+        on = abs(p_) <= 1e-9 * (1 + scale) and np.linalg.norm(g_) <= 1e-9 * max(median, 1e-300)
+        in_piece = surface.where is None or bool(surface.where(t_, jnp.asarray(x_), args))
+        if on and in_piece and np.all((x_ >= box[:, 0]) & (x_ <= box[:, 1])):
+            c1_points.append(np.concatenate([[t_], x_]))
+    c1_points = _dedupe(np.array(c1_points).reshape(-1, tx.shape[1]), scale) if c1_points else []
+    out.append(
+        _result(
+            "C1",
+            i,
+            name,
+            len(c1_points) == 0,
+            f"‖∇Φ‖ at {m} points of the piece: min {grad_norm[on_piece].min():.3g} (median over the box {median:.3g}); "
+            f"critical points of Φ on the piece: {len(c1_points)}",
+            c1_points,
+        )
+    )
+
+    # ---- (C2) ----
+    DJ = ev["DJ"]
+    k_int = int(interior.sum())
+    finite = np.all(np.isfinite(DJ), axis=(1, 2))
+    # C¹: for a C³ law, DJ(b) − DJ(a) = ½(D²J(a) + D²J(b))(b − a) + O(|b − a|³) between
+    # neighbouring samples; a kink (abs, where) leaves an O(1) jump of DJ instead.
+    kink = interior & ~finite
+    if len(pairs):
+        a, b = pairs[:, 0], pairs[:, 1]
+        use = interior[a] & interior[b] & finite[a] & finite[b] & (ts[a] == ts[b])
+        a, b = a[use], b[use]
+        step = projected[b] - projected[a]
+        trapezoid = 0.5 * np.einsum("kijl,kl->kij", ev["D2J"][a] + ev["D2J"][b], step)
+        miss = np.linalg.norm(DJ[b] - DJ[a] - trapezoid, axis=(1, 2))
+        bad = miss > 1e-3 * (1 + np.linalg.norm(DJ[a], axis=(1, 2)))
+        kink_points = 0.5 * (tx[a[bad]] + tx[b[bad]])
+    else:
+        kink_points = np.zeros((0, tx.shape[1]))
+    kink_points = _dedupe(np.concatenate([tx[kink], kink_points]), 1e3 * scale)
+    dets = np.where(finite[:, None, None], DJ, 0.0)
+    det = np.linalg.det(dets)
+    norm2 = np.linalg.norm(dets, ord=2, axis=(1, 2))
+    n = projected.shape[1]
+    singular = interior & finite & (np.abs(det) <= rtol * np.maximum(norm2, 1e-300) ** n)
+    zeros = _sign_change_zeros(scene, i, "det", tx, det, interior & finite, pairs, args, scale)
+    c2_points = list(kink_points) + list(tx[singular]) + list(zeros)
+    parts = [f"at {k_int} interior points"]
+    if len(kink_points):
+        parts.append(
+            "J is not C¹ (DJ not finite, or it jumps between neighbouring samples) "
+            f"near {len(kink_points)} point(s)"
+        )
+    if singular.any():
+        parts.append(f"det DJ = 0 at {int(singular.sum())} (J is not invertible there)")
+    if len(zeros):
+        parts.append(f"det DJ changes sign: {len(zeros)} zero(s) located")
+    if len(parts) == 1 and k_int:
+        parts.append(f"min |det DJ| = {np.abs(det[interior]).min():.3g}")
+    out.append(
+        _result(
+            "C2", i, name, None if k_int == 0 else len(c2_points) == 0, "; ".join(parts), c2_points
+        )
+    )
+
+    # ---- (C4) ----
+    f = ev["f"]
+    rate = ev["phi_t"] + np.einsum("ij,ij->i", ev["grad"], f)
+    size = grad_norm * np.linalg.norm(f, axis=1) + np.abs(ev["phi_t"])
+    flat = interior & (np.abs(rate) <= rtol * size + 1e-300)
+    zeros = _sign_change_zeros(scene, i, "rate", tx, rate, interior, pairs, args, scale)
+    c4_points = list(tx[flat]) + list(zeros)
+    detail = f"approach rate ∂Φ/∂t + ∇Φ·f at {k_int} interior points"
+    if k_int:
+        detail += f": range [{rate[interior].min():.3g}, {rate[interior].max():.3g}]"
+    if flat.any():
+        detail += f"; zero (tangency or f = 0) at {int(flat.sum())} points"
+    if len(zeros):
+        detail += f"; changes sign: tangency located at {len(zeros)} interior point(s)"
+    out.append(
+        _result("C4", i, name, None if k_int == 0 else len(c4_points) == 0, detail, c4_points)
+    )
+
+    # ---- (C5) ----
+    invertible = interior & finite & ~singular & (np.abs(det) > 0)
+    if not invertible.any():
+        out.append(
+            _result(
+                "C5",
+                i,
+                name,
+                None,
+                "not testable: DJ is singular at every interior sample, so Φ̃ = Φ ∘ J⁻¹ is undefined",
+            )
+        )
+    else:
+        w = np.zeros_like(ev["grad"])
+        w[invertible] = np.linalg.solve(
+            np.transpose(DJ[invertible], (0, 2, 1)), ev["grad"][invertible][..., None]
+        )[..., 0]
+        img_rate = ev["phi_t"] + np.einsum("ij,ij->i", w, ev["f_post"] - ev["J_t"])
+        img_size = np.linalg.norm(w, axis=1) * np.linalg.norm(ev["f_post"], axis=1) + np.abs(
+            ev["phi_t"]
+        )
+        flat = invertible & (np.abs(img_rate) <= rtol * img_size + 1e-300)
+        zeros = _sign_change_zeros(
+            scene, i, "image_rate", tx, img_rate, invertible, pairs, args, scale
+        )
+        c5_points = [
+            np.concatenate([[p[0]], np.asarray(surface.jump(p[0], jnp.asarray(p[1:]), args))])
+            for p in list(tx[flat]) + list(zeros)
+        ]
+        detail = (
+            f"rate of Φ̃ along f at the images J(x) of {int(invertible.sum())} interior points: "
+            f"range [{img_rate[invertible].min():.3g}, {img_rate[invertible].max():.3g}]"
+        )
+        if len(c5_points):
+            detail += f"; zero at {len(c5_points)} image point(s) (reported as points of Γ̃)"
+        skipped = int(interior.sum() - invertible.sum())
+        if skipped:
+            detail += f"; {skipped} samples skipped (DJ singular)"
+        out.append(_result("C5", i, name, len(c5_points) == 0, detail, c5_points))
+
+    # ---- ∂Γ, (C6), (C7) ----
+    if surface.where is None:
+        boundary = np.zeros((0, tx.shape[1]))
+        where_note = "the piece has no `where`, so no boundary"
+    else:
+        side = np.where(ev["inside"], 1.0, -1.0)
+        boundary = _sign_change_zeros(scene, i, "where", tx, side, converged, pairs, args, scale)
+        where_note = f"{len(boundary)} boundary point(s) located in the box"
+    if len(boundary) == 0:
+        out.append(_result("C6", i, name, True, f"vacuous: {where_note}"))
+        out.append(_result("C7", i, name, True, f"vacuous: {where_note}"))
+        return out
+    bt, bx = boundary[:, 0], boundary[:, 1:]
+    post = np.asarray(
+        jax.vmap(lambda t_, x_: surface.jump(t_, x_, args))(jnp.asarray(bt), jnp.asarray(bx))
+    )
+    moved = np.max(np.abs(post - bx), axis=1)
+    bad6 = moved > 1e-8 * (1 + np.max(np.abs(bx), axis=1))
+    out.append(
+        _result(
+            "C6",
+            i,
+            name,
+            not bad6.any(),
+            f"{where_note}; max ‖J(b) − b‖∞ = {moved.max():.3g}",
+            boundary[bad6],
+        )
+    )
+    inv, ok = (
+        np.asarray(v) for v in _inverse_at(scene, i, jnp.asarray(bt), jnp.asarray(post), args)
+    )
+    if not ok.any():
+        out.append(
+            _result(
+                "C7",
+                i,
+                name,
+                None,
+                f"not testable: J⁻¹ could not be solved at the {len(post)} point(s) of ∂Γ̃ = J(∂Γ)",
+            )
+        )
+    else:
+        moved7 = np.max(np.abs(inv - post), axis=1)
+        bad7 = ok & (moved7 > 1e-8 * (1 + np.max(np.abs(post), axis=1)))
+        pts = np.concatenate([bt[:, None], post], axis=1)[bad7]
+        note = "" if ok.all() else f"; J⁻¹ not solved at {int((~ok).sum())} point(s)"
+        out.append(
+            _result(
+                "C7",
+                i,
+                name,
+                not bad7.any(),
+                f"at {int(ok.sum())} point(s) of ∂Γ̃ = J(∂Γ): max ‖J⁻¹(b̃) − b̃‖∞ = {moved7[ok].max():.3g}{note}",
+                pts,
+            )
+        )
+    return out
