@@ -32,10 +32,10 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import diffrax  # noqa: E402
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
+from peers import HeyokaImpactRunner, ScipyImpactRunner  # noqa: E402
 
 import grazejax as gj  # noqa: E402  (turns float64 on)
 from grazejax import examples  # noqa: E402
-from peers import HeyokaImpactRunner, ScipyImpactRunner  # noqa: E402
 
 MU = 0.2
 N_IMPACTS = 10

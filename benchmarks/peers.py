@@ -53,10 +53,10 @@ post-jump state of the last impact when ``max_impacts`` is reached, otherwise
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from functools import lru_cache
+from functools import cache
 from types import SimpleNamespace
-from typing import Callable
 
 import numpy as np
 from scipy.integrate import solve_ivp
@@ -491,7 +491,7 @@ class HeyokaImpactRunner:
         return _result(ta.time, ta.state, self.times, self.pre, self.post, nsteps, sysm.n)
 
 
-@lru_cache(maxsize=None)
+@cache
 def _cached_heyoka_runner(system_name, tol):
     return HeyokaImpactRunner(system_name, tol)
 

@@ -77,7 +77,7 @@ SWEEP = _Config(rtol=1e-8, atol=1e-10, max_impacts=128, max_steps=400_000, n_sav
 CHUNK = 500.0
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _scene(name: str):
     # One Scene object per example, so that jit caches keyed on it are reused.
     return examples.PAPER_SCENES[name][0]()
@@ -87,7 +87,7 @@ def _args(name: str, *a, **kw):
     return examples.PAPER_SCENES[name][1](*a, **kw)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _compiled(scene_name: str, cfg: _Config, batch_args: bool):
     """jit(vmap(simulate)) over starts (and args if `batch_args`), times traced."""
     scene = _scene(scene_name)
