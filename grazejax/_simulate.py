@@ -444,7 +444,11 @@ def simulate(
 
     # ---- one iteration: one solver step ----
 
-    def body(c: _Carry) -> _Carry:
+    def body(c_in: _Carry) -> _Carry:
+        # A lane out of steps is frozen like a finished one (see `cond`), but keeps
+        # done = False so that it reports MAX_STEPS.
+        out_of_steps = ~c_in.done & (c_in.num_steps >= max_steps)
+        c = eqx.tree_at(lambda z: z.done, c_in, c_in.done | out_of_steps)
         args_ = args
         targs = (args_, c.t_hi, c.t_lo)
         s_end = s_end_of(c.t_hi, c.t_lo)
@@ -630,7 +634,7 @@ def simulate(
             x_final=jnp.where(reached_end, y1, jnp.where(underflow, c.y, landed.x_final)),
             save_index=save_index, save_xs=save_xs,
         )
-        return new
+        return eqx.tree_at(lambda z: z.done, new, new.done & ~out_of_steps)
 
     # ---- landing: the step [sa, target] has just been taken exactly ----
 
@@ -769,7 +773,11 @@ def simulate(
         return _without_buffers(small), rows, t_event, s_save
 
     def cond(c: _Carry):
-        return ~c.done & (c.num_steps < max_steps)
+        # Unbatched on purpose: under vmap, a batched predicate makes JAX select every
+        # carry leaf per lane at every iteration, copying the whole impact log and save
+        # buffers (measured: 56 µs per lane-step with max_impacts = 400). Finished lanes
+        # are frozen by `body` itself, so the loop can run until the last lane is done.
+        return eqxi.unvmap_any(~c.done & (c.num_steps < max_steps))
 
     final = lax.while_loop(cond, body, init)
 
