@@ -387,8 +387,12 @@ def simulate(
         g = piece.gap(t, y, args_)
         return (jnp.abs(g) <= floor) & jnp.isfinite(g), floor
 
+    # At t0 there is no flight history to scale round-off by: use ‖x0‖∞ for every
+    # coordinate, so that a start from a logged post-impact state (x1 = 2e-32 on a wall
+    # at x1 = 0, moving in) counts as on the surface and does not re-trigger.
+    x0_scale = jnp.full_like(x0, jnp.max(jnp.abs(x0)))
     restart0 = jnp.array(
-        [on_surface(p, t0, x0, args)[0] for p in pieces], dtype=bool
+        [on_surface(p, t0, x0, args, x0_scale)[0] for p in pieces], dtype=bool
     ).reshape((m,))
 
     n = x0.shape[0]
