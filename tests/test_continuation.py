@@ -1,0 +1,111 @@
+"""Continuation of periodic orbits through grazing: ex1dof (paper §5) and the impact oscillator."""
+
+import math
+
+import numpy as np
+import pytest
+
+import grazejax as gj
+from grazejax import examples as ex
+from grazejax._continuation import (
+    ContinuationStatus,
+    continue_orbit,
+    plot_bifurcation_diagram,
+)
+from grazejax._periodic import OrbitStatus, find_periodic_orbit
+
+from .test_periodic import EPS, EX1DOF, OSC, TOL  # shared scenes: shared compiled programs
+
+
+def ex1dof_args(mu):
+    return ex.ex1dof_args(mu)
+
+
+def test_ex1dof_grazing_bifurcation_at_zero(tmp_path):
+    """Ψ_μ (no impact, μ < 0) grazes Γ at μ = 0 and becomes the impacting cycle (μ > 0)."""
+    orbit = find_periodic_orbit(EX1DOF, [1.7, 0.0], 6.28, ex1dof_args(-0.3), fix=1,
+                                start_at_impact=False, **TOL)
+    branch = continue_orbit(EX1DOF, orbit, ex1dof_args, -0.3, 0.3, progress=False, **TOL)
+    assert ContinuationStatus(branch.status) == ContinuationStatus.REACHED_STOP
+    assert branch.mu[0] == -0.3 and branch.mu[-1] == 0.3
+    assert len(branch.grazing) == 1
+    graze = branch.grazing[0]
+    assert graze.kind == "persistence"
+    assert (graze.impacts_before, graze.impacts_after) == (0, 1)
+    # Located to the accuracy of the weakly attracting cycle (1 − ρ ≈ 6e-4 amplifies the
+    # 1e-12 integration tolerance to ~1e-9 in amplitude).
+    assert abs(graze.mu) < 1e-8
+    np.testing.assert_allclose(graze.point, [0.0, 0.0], atol=1e-6)
+    assert abs(graze.depth) < 1e-6
+
+    before = branch.mu < graze.mu
+    after = branch.mu > graze.mu + 1e-6
+    assert np.all(branch.num_impacts[before] == 0) and np.all(branch.num_impacts[after] == 1)
+    assert np.all(branch.stable)
+    # μ < 0: the closed form, period 2π and multiplier exp(−2πε(1 + μ)²).
+    mu = branch.mu[before]
+    np.testing.assert_allclose(branch.period[before], 2 * math.pi, atol=1e-8)
+    np.testing.assert_allclose(branch.multipliers[before][:, 1].real,
+                               np.exp(-2 * math.pi * EPS * (1 + mu) ** 2), atol=1e-8)
+    np.testing.assert_allclose(branch.x_max[before][:, 0], 2 + mu, atol=1e-6)
+    # μ > 0: the impacting cycle is super-stable near grazing (ρ → 0 with μ).
+    rho = np.abs(branch.multipliers[after][:, 1])
+    assert rho[0] < 1e-3 and np.all(np.diff(rho) > 0)
+    last = find_periodic_orbit(EX1DOF, branch.x0[-1], branch.period[-1], ex1dof_args(0.3),
+                               t0=branch.t0[-1], start_at_impact=False, **TOL)
+    assert int(last.status) == OrbitStatus.SUCCESS
+    np.testing.assert_allclose(branch.period[-1], float(last.period), atol=1e-8)
+
+    path = tmp_path / "ex1dof-bifurcation.png"
+    plot_bifurcation_diagram(branch, path, coordinate=0, title="ex1dof")
+    assert path.exists() and path.stat().st_size > 10_000
+
+
+@pytest.mark.slow
+def test_ex1dof_impacting_family_ends_where_its_impact_speed_vanishes():
+    """The impacting cycle of μ < 0 exists only below μ_c ≈ −0.10598: its impact speed → 0."""
+    args = ex1dof_args(-0.3)
+    orbit = find_periodic_orbit(EX1DOF, [0.0, 0.084], 6.1, args, **TOL)
+    assert orbit.start_at_impact and int(orbit.num_impacts) == 1
+    branch = continue_orbit(EX1DOF, orbit, ex1dof_args, -0.3, 0.0, progress=False, **TOL)
+    assert ContinuationStatus(branch.status) == ContinuationStatus.BRANCH_ENDS
+    end = branch.grazing[-1]
+    assert end.kind == "end" and end.impacts_before == 1
+    np.testing.assert_allclose(end.mu, -0.105985, atol=2e-5)
+    assert abs(end.depth) < 1e-8  # −v²/(2a): the impact speed has gone to 0
+    assert np.all(branch.num_impacts == 1) and np.all(branch.stable)
+    # Brute force: between μ_c and 0 every start ends on the continuous cycle.
+    sweep = gj.sweep(EX1DOF, np.stack([np.zeros(6), np.linspace(0.02, 0.3, 6)], axis=1), 0.0,
+                     3000.0, ex1dof_args(-0.05), progress=False, max_impacts=2000)
+    late = sweep.impact_times > 2000.0
+    assert not np.any(late)
+
+
+@pytest.mark.slow
+def test_forced_oscillator_fold_and_grazing():
+    """Period-1 impacting orbits of the forced oscillator (ω = 0.5) lose stability at a
+    fold just before grazing; the unstable one ends at grazing (σ* = A/√D), where the
+    non-impacting response takes over (a non-smooth fold)."""
+    omega = 0.5
+
+    def args_of(sigma):
+        return ex.impact_oscillator_args(zeta=0.05, A=1.0, omega=omega, sigma=sigma, r=0.8)
+
+    T = 2 * math.pi / omega
+    orbit = find_periodic_orbit(OSC, [1.08, -0.2], T, args_of(1.2), fixed_period=True, **TOL)
+    branch = continue_orbit(OSC, orbit, args_of, 1.2, 1.4, ds=0.05, progress=False, **TOL)
+    assert ContinuationStatus(branch.status) == ContinuationStatus.REACHED_STOP
+    sigma_star = 1 / math.sqrt((1 - omega**2) ** 2 + (2 * 0.05 * omega) ** 2)
+    graze = branch.grazing[0]
+    np.testing.assert_allclose(graze.mu, sigma_star, atol=1e-6)
+    assert (graze.impacts_before, graze.impacts_after, graze.kind) == (1, 0, "fold")
+    impacting = branch.num_impacts == 1
+    largest = np.abs(branch.multipliers[:, 0])
+    # Stable (complex pair of modulus r e^{−ζT}... = √det U) far from grazing, unstable
+    # near it: the largest multiplier grows without bound as the impact speed → 0.
+    np.testing.assert_allclose(largest[0], math.sqrt(0.64 * math.exp(-0.1 * T)), rtol=1e-8)
+    assert branch.stable[0] and not np.all(branch.stable[impacting])
+    assert np.max(largest[impacting]) > 50
+    # Past grazing: the linear response, multipliers e^{(−ζ ± i√(1−ζ²))T}.
+    free = ~impacting
+    np.testing.assert_allclose(np.abs(branch.multipliers[free]), math.exp(-0.05 * T), rtol=1e-8)
