@@ -1,0 +1,91 @@
+"""Smoke test of the benchmark suite (benchmarks/bench_suite.py, `grazejax bench`).
+
+A tiny subset (`--smoke`: exnonaxial, Tsit5 vs SciPy RK45 vs heyoka, tolerances 1e-4 and
+1e-8) runs through the command line and writes a strict-JSON result with every plotted
+point; the ground truths of the suite are checked against each other. Skipped when
+heyoka (the `bench` extra) is not installed.
+"""
+
+import importlib.util
+import json
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+BENCHMARKS = ROOT / "benchmarks"
+
+pytestmark = [
+    pytest.mark.skipif(
+        importlib.util.find_spec("heyoka") is None,
+        reason="heyoka is in the `bench` extra (pip install -e '.[bench]')",
+    ),
+    pytest.mark.skipif(
+        not (BENCHMARKS / "bench_suite.py").is_file(),
+        reason="the benchmarks live in the source checkout",
+    ),
+]
+
+
+def _strict(text):
+    def reject(name):
+        raise ValueError(f"non-standard JSON constant {name}")
+
+    return json.loads(text, parse_constant=reject)
+
+
+def test_bench_smoke_writes_parseable_results(tmp_path):
+    from grazejax import _cli
+
+    assert _cli.main(["bench", "--smoke", "--out", str(tmp_path)]) == 0
+    data = _strict((tmp_path / "suite.json").read_text())
+    assert data["mode"] == "smoke"
+    assert data["machine"]["cpu_count"] >= 1 and data["versions"]["jax"]
+    wp = data["work_precision"]
+    case = wp["cases"]["exnonaxial"]
+    assert len(case["truth"]["impact_times"]) == 17
+    rows = wp["rows"]
+    assert {r["tool"] for r in rows} == {"grazejax", "scipy", "heyoka"}
+    assert sorted({r["tol"] for r in rows}) == [1e-8, 1e-4]
+    for r in rows:  # every plotted point has its coordinates in the JSON
+        assert r["time_min_s"] > 0 and r["evals"] > 0 and r["evals_kind"]
+    tight = [r for r in rows if r["tol"] == 1e-8]
+    for r in tight:
+        assert r["ok"], r
+        # Near-grazing impacts amplify the state error into the impact times (~1/√depth).
+        assert r["err_post"] < 1e-6 and r["err_t"] < 1e-3, r
+    for key in ("err_t", "err_post", "err_final"):
+        assert isinstance(case["dominance"][key]["dominates_scipy_everywhere"], bool)
+    csv_lines = (tmp_path / "work_precision.csv").read_text().splitlines()
+    assert len(csv_lines) == len(rows) + 1
+    assert (tmp_path / "summary.md").read_text().startswith("# grazejax benchmark suite")
+    assert (tmp_path / "wp_exnonaxial.png").stat().st_size > 10_000
+
+
+def test_closed_form_truths_agree_with_heyoka_long_double():
+    """The mpmath closed forms of the suite against heyoka in 80-bit long double."""
+    sys.path.insert(0, str(BENCHMARKS))
+    try:
+        import _cases
+    finally:
+        sys.path.remove(str(BENCHMARKS))
+    if np.finfo(np.longdouble).eps >= np.finfo(np.float64).eps:
+        pytest.skip("long double is double on this platform")
+    cases = _cases.make_cases(include_ball=True)
+    for name in ("exnonaxial", "oscillator", "stiff", "ball"):
+        case = cases[name]
+        truth = case.truth()
+        ld = _cases.heyoka_reference(case.peer_system, case.x0, case.t1, case.peer_params)
+        assert len(ld["impact_times"]) == len(truth["impact_times"]) > 0, name
+        scale = max(1.0, case.t1)
+        assert np.max(np.abs(ld["impact_times"] - truth["impact_times"])) <= 1e-14 * scale, name
+        assert np.max(np.abs(ld["impact_post"] - truth["impact_post"])) <= 1e-14, name
+        assert np.max(np.abs(ld["x_final"] - truth["x_final"])) <= 1e-13, name
+    # A dip of depth 1e-8 below the floor: the float start's exact depth and one impact.
+    x0, depth, truth = _cases.parabola_grazing_start(1e-8)
+    assert math.isclose(depth, 1e-8, rel_tol=1e-6) and len(truth["impact_times"]) == 1
+    x0, depth, truth = _cases.exnonaxial_grazing_start(-1e-6)
+    assert depth < 0 and len(truth["impact_times"]) == 0
