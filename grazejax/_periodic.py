@@ -47,6 +47,7 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, Bool, Complex, Float, Int
 
+from ._linearize import saltation_matrix
 from ._scene import Scene
 from ._simulate import simulate
 from ._status import Status
@@ -710,22 +711,11 @@ class Floquet(eqx.Module):
 def saltation(scene: Scene, surface_index: int, t, x_pre, args) -> Array:
     """Closed-form saltation matrix of an impact on surface `surface_index` at (t, x_pre).
 
-    S = DJ + (f⁺ − DJ f⁻ − ∂J/∂t) ∇Φᵀ / (∂Φ/∂t + ∇Φ·f⁻), with f⁻ = f(t, x_pre) and
-    f⁺ = f(t, J(t, x_pre)): the Jacobian of the post-impact state with respect to the
-    pre-impact state at a fixed comparison time (moving surfaces and jumps included).
-    Diverges like 1/(∇Φ·f⁻) at a grazing contact.
+    The matrix of [`grazejax.saltation_matrix`][] (one implementation for the package):
+    S = DJ + (f⁺ − DJ f⁻ − ∂J/∂t) ∇Φᵀ / (∂Φ/∂t + ∇Φ·f⁻). It diverges like 1/(∇Φ·f⁻) near a
+    grazing contact; exactly at one it is the (N2) value, the identity.
     """
-    surface = scene.surfaces[surface_index]
-    f = scene.vector_field
-    t = jnp.asarray(t, float)
-    x_pre = jnp.asarray(x_pre, float)
-    f_minus = f(t, x_pre, args)
-    x_post = surface.jump(t, x_pre, args)
-    f_plus = f(t, x_post, args)
-    dJ_dt, dJ_dx = jax.jacfwd(lambda t_, x_: surface.jump(t_, x_, args), argnums=(0, 1))(t, x_pre)
-    dphi_dt, dphi_dx = jax.grad(lambda t_, x_: surface.phi(t_, x_, args), argnums=(0, 1))(t, x_pre)
-    speed = dphi_dt + jnp.dot(dphi_dx, f_minus)
-    return dJ_dx + jnp.outer(f_plus - dJ_dx @ f_minus - dJ_dt, dphi_dx) / speed
+    return saltation_matrix(scene, surface_index, t, x_pre, args).matrix
 
 
 @eqx.filter_jit
