@@ -154,6 +154,8 @@ def _backward_piece(surface: Surface, vector_field) -> _Piece:
 
 
 class _Carry(eqx.Module):
+    args: Any  # this lane's parameters (in the carry so that a pool of lanes can refill)
+    time_scale: Any  # |t| below which a step no longer moves time (see h_min_at)
     s: Any  # local clock at the start of the next step
     t_hi: Any  # absolute time of the last restart, double-double
     t_lo: Any
@@ -291,8 +293,52 @@ def simulate(
         scene, x0, t0, t1, args, max_impacts=max_impacts, max_steps=max_steps,
         direction=direction, allow_float32=allow_float32, saveat=saveat,
     )
-    x0, t0, t1, sigma, ts = checked.x0, checked.t0, checked.t1, checked.sigma, checked.ts
-    dtype = x0.dtype
+    program = build_program(
+        scene, checked, solver=solver, rtol=rtol, atol=atol,
+        stepsize_controller=stepsize_controller, dt0=dt0, max_impacts=max_impacts,
+        max_steps=max_steps, zeno_rtol=zeno_rtol,
+    )
+
+    def cond(c):
+        # Unbatched on purpose: under vmap, a batched predicate makes JAX select every
+        # carry leaf per lane at every iteration, copying the whole impact log and save
+        # buffers (measured: 56 µs per lane-step with max_impacts = 400). Finished lanes
+        # are frozen by `step` itself, so the loop can run until the last lane is done.
+        return eqxi.unvmap_any(program.running(c))
+
+    final = lax.while_loop(cond, program.step, program.init(checked.x0, args))
+    sol = program.finish(final)
+    if throw:
+        sol = _throw_if_failed(sol)
+    return sol
+
+
+class Program(eqx.Module):
+    """The impact loop of one configuration, as functions of one lane's loop state.
+
+    `simulate` is `finish(while_loop(any running, step, init(x0, args)))`. `sweep` runs the
+    same functions on a pool of lanes that it refills as lanes finish, so every lane
+    computes exactly what `simulate` computes for it alone.
+    """
+
+    init: Callable = eqx.field(static=True)  # (x0, args) -> carry
+    step: Callable = eqx.field(static=True)  # carry -> carry: one solver step (frozen when done)
+    running: Callable = eqx.field(static=True)  # carry -> bool: not finished, not out of steps
+    finish: Callable = eqx.field(static=True)  # carry -> Solution
+
+
+def build_program(
+    scene: Scene, checked, *, solver, rtol, atol, stepsize_controller, dt0, max_impacts,
+    max_steps, zeno_rtol,
+) -> Program:
+    """The loop functions for `scene`, with inputs checked by `validate_inputs`.
+
+    `checked.x0` is only a template (shape and dtype); t0, t1 and saveat are shared by
+    every lane that runs the program.
+    """
+    t0, t1, sigma, ts = checked.t0, checked.t1, checked.sigma, checked.ts
+    dtype = checked.x0.dtype
+    n = checked.x0.shape[0]
 
     if solver is None:
         solver = diffrax.Tsit5()
@@ -336,20 +382,11 @@ def simulate(
     def s_end_of(t_hi, t_lo):
         return sigma * ((t1 - t_hi) - t_lo)
 
-    targs0 = (args, t0, jnp.zeros_like(t0))
-    s_end0 = s_end_of(t0, jnp.zeros_like(t0))
     error_order = solver.error_order(term)
     zero = jnp.zeros((), dtype)
-    tnext, controller_state0 = controller.init(
-        term, zero, s_end0, x0, dt0, targs0, solver.func, error_order
-    )
-    h0 = jnp.minimum(tnext, s_end0)
-    solver_state0 = solver.init(term, zero, h0, x0, targs0)
-    # Below h_min a step no longer moves t: the controller has given up.
-    time_scale = jnp.maximum(jnp.abs(t0), 1e3 * jnp.abs(h0))
-    time_scale = jnp.maximum(time_scale, jnp.where(jnp.isfinite(t1), jnp.abs(t1), 0.0))
 
-    def h_min_at(t_abs):
+    # Below h_min a step no longer moves t: the controller has given up.
+    def h_min_at(t_abs, time_scale):
         return 16 * eps * jnp.maximum(jnp.abs(t_abs), time_scale)
 
     # ---- per-surface helpers (static Python loops over the pieces) ----
@@ -387,43 +424,53 @@ def simulate(
         g = piece.gap(t, y, args_)
         return (jnp.abs(g) <= floor) & jnp.isfinite(g), floor
 
-    # At t0 there is no flight history to scale round-off by: use ‖x0‖∞ for every
-    # coordinate, so that a start from a logged post-impact state (x1 = 2e-32 on a wall
-    # at x1 = 0, moving in) counts as on the surface and does not re-trigger.
-    x0_scale = jnp.full_like(x0, jnp.max(jnp.abs(x0)))
-    restart0 = jnp.array(
-        [on_surface(p, t0, x0, args, x0_scale)[0] for p in pieces], dtype=bool
-    ).reshape((m,))
-
-    n = x0.shape[0]
     nan = jnp.array(jnp.nan, dtype)
-    if ts is not None:
-        save_xs0 = jnp.full((ts.shape[0], n), jnp.nan, dtype)
-        save_index0 = jnp.array(0)
-    else:
-        save_xs0 = save_index0 = None
-
-    finite0 = jnp.all(jnp.isfinite(x0)) & _tree_all_finite(args) & jnp.isfinite(t0) & ~jnp.isnan(t1)
     mask_shape = (m, max_signs)
-    init = _Carry(
-        s=zero, t_hi=t0, t_lo=jnp.zeros_like(t0), y=x0, h=h0,
-        solver_state=solver_state0, controller_state=controller_state0,
-        made_jump=jnp.array(False), restart=restart0, flight_scale=jnp.abs(x0),
-        landing=jnp.array(False), target=zero,
-        pending=jnp.zeros(mask_shape, bool), touch=jnp.zeros(mask_shape, bool),
-        boundary=jnp.zeros(mask_shape, bool), h_after=h0,
-        num_impacts=jnp.array(0),
-        log_t=jnp.full((max_impacts,), jnp.nan, dtype),
-        log_pre=jnp.full((max_impacts, n), jnp.nan, dtype),
-        log_post=jnp.full((max_impacts, n), jnp.nan, dtype),
-        log_surface=jnp.full((max_impacts,), -1),
-        log_kind=jnp.full((max_impacts,), int(ImpactKind.NONE)),
-        intervals=jnp.full((3,), jnp.nan, dtype), zeno_time=nan,
-        num_steps=jnp.array(0), num_accepted=jnp.array(0),
-        status=jnp.where(finite0, int(Status.SUCCESS), int(Status.NONFINITE)),
-        done=~finite0, t_final=t0, x_final=x0,
-        save_index=save_index0, save_xs=save_xs0,
-    )
+
+    def init(x0, args) -> _Carry:
+        targs0 = (args, t0, jnp.zeros_like(t0))
+        s_end0 = s_end_of(t0, jnp.zeros_like(t0))
+        tnext, controller_state0 = controller.init(
+            term, zero, s_end0, x0, dt0, targs0, solver.func, error_order
+        )
+        h0 = jnp.minimum(tnext, s_end0)
+        solver_state0 = solver.init(term, zero, h0, x0, targs0)
+        time_scale = jnp.maximum(jnp.abs(t0), 1e3 * jnp.abs(h0))
+        time_scale = jnp.maximum(time_scale, jnp.where(jnp.isfinite(t1), jnp.abs(t1), 0.0))
+        # At t0 there is no flight history to scale round-off by: use ‖x0‖∞ for every
+        # coordinate, so that a start from a logged post-impact state (x1 = 2e-32 on a wall
+        # at x1 = 0, moving in) counts as on the surface and does not re-trigger.
+        x0_scale = jnp.full_like(x0, jnp.max(jnp.abs(x0)))
+        restart0 = jnp.array(
+            [on_surface(p, t0, x0, args, x0_scale)[0] for p in pieces], dtype=bool
+        ).reshape((m,))
+        if ts is not None:
+            save_xs0 = jnp.full((ts.shape[0], n), jnp.nan, dtype)
+            save_index0 = jnp.array(0)
+        else:
+            save_xs0 = save_index0 = None
+        finite0 = (
+            jnp.all(jnp.isfinite(x0)) & _tree_all_finite(args) & jnp.isfinite(t0) & ~jnp.isnan(t1)
+        )
+        return _Carry(
+            args=args, time_scale=time_scale, s=zero, t_hi=t0, t_lo=jnp.zeros_like(t0), y=x0,
+            h=h0, solver_state=solver_state0, controller_state=controller_state0,
+            made_jump=jnp.array(False), restart=restart0, flight_scale=jnp.abs(x0),
+            landing=jnp.array(False), target=zero,
+            pending=jnp.zeros(mask_shape, bool), touch=jnp.zeros(mask_shape, bool),
+            boundary=jnp.zeros(mask_shape, bool), h_after=h0,
+            num_impacts=jnp.array(0),
+            log_t=jnp.full((max_impacts,), jnp.nan, dtype),
+            log_pre=jnp.full((max_impacts, n), jnp.nan, dtype),
+            log_post=jnp.full((max_impacts, n), jnp.nan, dtype),
+            log_surface=jnp.full((max_impacts,), -1),
+            log_kind=jnp.full((max_impacts,), int(ImpactKind.NONE)),
+            intervals=jnp.full((3,), jnp.nan, dtype), zeno_time=nan,
+            num_steps=jnp.array(0), num_accepted=jnp.array(0),
+            status=jnp.where(finite0, int(Status.SUCCESS), int(Status.NONFINITE)),
+            done=~finite0, t_final=t0, x_final=x0,
+            save_index=save_index0, save_xs=save_xs0,
+        )
 
     # ---- saving at requested times (compiled only when asked) ----
 
@@ -453,7 +500,7 @@ def simulate(
         # done = False so that it reports MAX_STEPS.
         out_of_steps = ~c_in.done & (c_in.num_steps >= max_steps)
         c = eqx.tree_at(lambda z: z.done, c_in, c_in.done | out_of_steps)
-        args_ = args
+        args_ = c.args
         targs = (args_, c.t_hi, c.t_lo)
         s_end = s_end_of(c.t_hi, c.t_lo)
         sa = c.s
@@ -583,8 +630,8 @@ def simulate(
             s_stop = jnp.where(accept_free, sb, jnp.where(c.landing & ~c.done, s_save, -jnp.inf))
             save_index, save_xs = save(c, interp, sa, s_stop)
 
-        reached_end = accept_free & (sb >= s_end - h_min_at(abs_time(sb, c.t_hi, c.t_lo)))
-        underflow = reject & (h_next < h_min_at(abs_time(sa, c.t_hi, c.t_lo)))
+        reached_end = accept_free & (sb >= s_end - h_min_at(abs_time(sb, c.t_hi, c.t_lo), c.time_scale))
+        underflow = reject & (h_next < h_min_at(abs_time(sa, c.t_hi, c.t_lo), c.time_scale))
         fail_status = jnp.where(finite1, int(Status.STEP_SIZE_UNDERFLOW), int(Status.NONFINITE))
 
         def pick(a_free, a_land, a_goland, a_other):
@@ -593,6 +640,7 @@ def simulate(
             )
 
         new = _Carry(
+            args=c.args, time_scale=c.time_scale,
             s=pick(sb, landed.s, sa, sa),
             t_hi=jnp.where(c.landing, landed.t_hi, c.t_hi),
             t_lo=jnp.where(c.landing, landed.t_lo, c.t_lo),
@@ -619,7 +667,7 @@ def simulate(
             # step 10x per flight (to 1e9 with t1 = inf) until the event search loses
             # its precision.
             h_after=jnp.where(
-                go_land, jnp.minimum(jnp.maximum(sb - sa, h_next), 2 * first + h_min_at(first)), c.h_after
+                go_land, jnp.minimum(jnp.maximum(sb - sa, h_next), 2 * first + h_min_at(first, c.time_scale)), c.h_after
             ),
             num_impacts=landed.num_impacts,
             log_t=landed.log_t, log_pre=landed.log_pre, log_post=landed.log_post,
@@ -643,7 +691,7 @@ def simulate(
     # ---- landing: the step [sa, target] has just been taken exactly ----
 
     def _land(c: _Carry, y_star, sa, s_star, interp) -> _Carry:
-        args_ = args
+        args_ = c.args
         t_hi, t_lo = c.t_hi, c.t_lo
         lands = c.landing & ~c.done
         # Round-off in the event state is relative to the magnitudes met in this flight, not
@@ -710,7 +758,7 @@ def simulate(
         restart = []
         stuck = jnp.array(False)
         x_scale = jnp.maximum(flight_scale, jnp.abs(x_post))
-        for i, piece in enumerate(pieces):
+        for piece in pieces:
             on, floor = on_surface(piece, t_event, x_post, args_, x_scale, step_ulps)
             restart.append(on)
             for sign in piece.signs:
@@ -732,7 +780,7 @@ def simulate(
         remaining = safe_divide(d2 * r_last, 1 - r_last, r_last < 1)
         elapsed = jnp.abs(t_event - t0)
         zeno = geometric & (remaining <= zeno_rtol * elapsed)
-        t_resolution = h_min_at(t_event)
+        t_resolution = h_min_at(t_event, c.time_scale)
         zeno = zeno | (interval <= t_resolution) & (c.num_impacts > 0)
         zeno_time = jnp.where(zeno, t_event + sigma * remaining, jnp.where(stuck, t_event, nan))
         zeno = zeno | stuck
@@ -776,37 +824,30 @@ def simulate(
         rows = jax.tree.map(lambda *r: jnp.stack(r), *rows)
         return _without_buffers(small), rows, t_event, s_save
 
-    def cond(c: _Carry):
-        # Unbatched on purpose: under vmap, a batched predicate makes JAX select every
-        # carry leaf per lane at every iteration, copying the whole impact log and save
-        # buffers (measured: 56 µs per lane-step with max_impacts = 400). Finished lanes
-        # are frozen by `body` itself, so the loop can run until the last lane is done.
-        return eqxi.unvmap_any(~c.done & (c.num_steps < max_steps))
+    def running(c: _Carry):
+        return ~c.done & (c.num_steps < max_steps)
 
-    final = lax.while_loop(cond, body, init)
+    def finish(final: _Carry) -> Solution:
+        out_of_steps = ~final.done
+        t_now = abs_time(final.s, final.t_hi, final.t_lo)
+        return Solution(
+            t_final=jnp.where(out_of_steps, t_now, final.t_final),
+            x_final=jnp.where(out_of_steps, final.y, final.x_final),
+            num_impacts=final.num_impacts,
+            impact_times=final.log_t,
+            impact_pre=final.log_pre,
+            impact_post=final.log_post,
+            impact_surface=final.log_surface,
+            impact_kind=final.log_kind,
+            status=jnp.where(out_of_steps, int(Status.MAX_STEPS), final.status),
+            zeno_time=final.zeno_time,
+            num_steps=final.num_steps,
+            num_accepted_steps=final.num_accepted,
+            ts=ts,
+            xs=final.save_xs,
+        )
 
-    out_of_steps = ~final.done
-    t_now = abs_time(final.s, final.t_hi, final.t_lo)
-    status = jnp.where(out_of_steps, int(Status.MAX_STEPS), final.status)
-    sol = Solution(
-        t_final=jnp.where(out_of_steps, t_now, final.t_final),
-        x_final=jnp.where(out_of_steps, final.y, final.x_final),
-        num_impacts=final.num_impacts,
-        impact_times=final.log_t,
-        impact_pre=final.log_pre,
-        impact_post=final.log_post,
-        impact_surface=final.log_surface,
-        impact_kind=final.log_kind,
-        status=status,
-        zeno_time=final.zeno_time,
-        num_steps=final.num_steps,
-        num_accepted_steps=final.num_accepted,
-        ts=ts,
-        xs=final.save_xs,
-    )
-    if throw:
-        sol = _throw_if_failed(sol)
-    return sol
+    return Program(init=init, step=body, running=running, finish=finish)
 
 
 _BUFFERS = ("log_t", "log_pre", "log_post", "log_surface", "log_kind", "save_index", "save_xs")
