@@ -36,7 +36,7 @@ import jax.lax as lax
 import jax.numpy as jnp
 
 from ._events import FLOOR_ULPS, closed_piece, gap_floor, is_candidate, locate, step_ends
-from ._roots import safe_divide
+from ._roots import bracketed_root, safe_divide
 from ._scene import Scene, Surface
 from ._solution import Solution
 from ._status import ImpactKind, Status
@@ -178,6 +178,8 @@ class _Carry(eqx.Module):
     log_post: Any
     log_surface: Any
     log_kind: Any
+    stick: Any  # bool[m]: sliding on surface i, held by its contact force (zeno="stick")
+    releasing: Any  # bool: the located event is the end of that sliding (release)
     intervals: Any  # the last three inter-impact times, for Zeno detection
     zeno_time: Any
     num_steps: Any
@@ -225,6 +227,7 @@ def simulate(
     max_steps: int = 100_000,
     saveat=None,
     zeno_rtol: float = 1e-6,
+    zeno: str = "stop",
     direction: int | None = None,
     allow_float32: bool = False,
     throw: bool = False,
@@ -258,6 +261,12 @@ def simulate(
     - `zeno_rtol`: Zeno accumulation is declared when the last three inter-impact times
       shrink geometrically (ratios equal to 5%) and the predicted time left to
       accumulation is below `zeno_rtol × (t − t0)`; the estimate is in `zeno_time`.
+    - `zeno`: what happens at a Zeno accumulation or a tangential restart pushed into a
+      surface. `"stop"` (default): the run ends with `Status.ZENO`. `"stick"`: the state
+      slides on the surface (Φ = 0, Φ̇ = 0) under the contact force that the free flow
+      calls for (see *Sticking* below) and is released when the free flow would pull it
+      away (Φ̈ ≥ 0); both moments are logged (`ImpactKind.STICK`, `ImpactKind.RELEASE`).
+      Forward time only.
     - `direction`: `+1` or `-1`; needed only when `t0`, `t1` are traced (inside `jit`).
     - `allow_float32`: grazejax runs in float64; a float32 `x0` is an error unless this
       is set (contact floors then scale with float32's epsilon).
@@ -265,6 +274,22 @@ def simulate(
       (only outside `vmap`; batches report per-lane status instead).
 
     **Returns:** a [`grazejax.Solution`][].
+
+    **Sticking** (`zeno="stick"`): on the contact manifold M = {Φ = 0, Φ̇ = 0} the flow is
+    F = f + λd, with Φ̇, Φ̈ the derivatives along the free flow f, λ = −Φ̈/(∇ₓΦ̇·d) and d
+    the direction in which the surface's jump law applies its impulses: (DJ − I)∇ₓΦ̇,
+    minus its component along ∇ₓΦ (the least-norm ∇ₓΦ̇ direction if the jump law has
+    no impulse there). ∇ₓΦ·d = 0 keeps Φ̇ unchanged and λ makes d(Φ̇)/dt = 0, so M is
+    invariant. For a mechanical system x = (q, v), Φ = Φ(t, q), with a restitution law,
+    d = (0, n): the normal contact force on the velocities, which holds while the free
+    flow pushes into the surface (Φ̈ < 0). Sliding starts at the impact where Zeno is detected (the skipped
+    tail is at most `zeno_rtol·t` long; the state is projected onto M, removing the
+    residual normal velocity), or at once after a tangential post-impact state pushed in
+    (e.g. restitution 0). It ends at the first root of Φ̈ (bracketed on the step's dense
+    output, a solver step lands on it); the state is projected onto M again and flies
+    freely from there. Another surface met while sliding is an ordinary impact (sliding
+    stops, and restarts if the state is again tangential and pushed in). Sliding on two
+    surfaces at once is not modelled: the run ends with `Status.ZENO`.
 
     **Event semantics** (DESIGN.md §2): an impact on Γ_i happens when Φ_i reaches 0 while
     decreasing, or touches 0 tangentially, at a point of the closed piece (`where` true to
@@ -296,7 +321,7 @@ def simulate(
     program = build_program(
         scene, checked, solver=solver, rtol=rtol, atol=atol,
         stepsize_controller=stepsize_controller, dt0=dt0, max_impacts=max_impacts,
-        max_steps=max_steps, zeno_rtol=zeno_rtol,
+        max_steps=max_steps, zeno_rtol=zeno_rtol, zeno=zeno,
     )
 
     def cond(c):
@@ -329,13 +354,20 @@ class Program(eqx.Module):
 
 def build_program(
     scene: Scene, checked, *, solver, rtol, atol, stepsize_controller, dt0, max_impacts,
-    max_steps, zeno_rtol,
+    max_steps, zeno_rtol, zeno="stop",
 ) -> Program:
     """The loop functions for `scene`, with inputs checked by `validate_inputs`.
 
     `checked.x0` is only a template (shape and dtype); t0, t1 and saveat are shared by
     every lane that runs the program.
     """
+    if zeno not in ("stop", "stick"):
+        raise ValueError(f"zeno must be 'stop' or 'stick', got {zeno!r}")
+    if zeno == "stick" and checked.sigma < 0:
+        raise ValueError(
+            "zeno='stick' is forward time only: a backward run cannot tell where a sliding "
+            "phase began (the release map is not invertible)"
+        )
     t0, t1, sigma, ts = checked.t0, checked.t1, checked.sigma, checked.ts
     dtype = checked.x0.dtype
     n = checked.x0.shape[0]
@@ -373,9 +405,68 @@ def build_program(
     def abs_time(s, t_hi, t_lo):
         return t_hi + (t_lo + sigma * s)
 
+    # Sliding is compiled in only when asked for (zeno="stick"), and the constrained
+    # field is evaluated only while some lane slides.
+    sticky = zeno == "stick" and m > 0
+
+    def contact_geometry(piece, t, y, args_):
+        """Φ, Φ̇, Φ̈ along the free flow; ∇Φ, ∇Φ̇; the contact force direction d (simulate)."""
+        ones = jnp.ones_like(t)
+
+        def phi(t_, y_):
+            return piece.gap(t_, y_, args_)
+
+        def phi_dot(t_, y_):
+            return jax.jvp(phi, (t_, y_), (ones, f(t_, y_, args_)))[1]
+
+        g, grad_phi = jax.value_and_grad(phi, argnums=1)(t, y)
+        gd, gdd = jax.jvp(phi_dot, (t, y), (ones, f(t, y, args_)))
+        grad_gd = jax.grad(phi_dot, argnums=1)(t, y)
+        norm2 = jnp.sum(grad_phi**2)
+
+        def tangent(v):  # the part of v along which Φ does not change
+            return v - safe_divide(jnp.dot(v, grad_phi), norm2, norm2 > 0) * grad_phi
+
+        # The force acts where the jump law puts its impulses: (DJ − I)∇Φ̇ spans the
+        # velocities for a mechanical impact law (for Newton's law it is the normal on the
+        # velocities). Without an impulse there (DJ = I), the least-norm direction.
+        impulse = jax.jacfwd(lambda y_: piece.jump(t, y_, args_))(y) - jnp.eye(y.shape[0], dtype=y.dtype)
+        d_impulse = tangent(impulse @ grad_gd)
+        d_least = tangent(grad_gd)
+        usable = jnp.abs(jnp.dot(grad_gd, d_impulse)) > 1e-8 * jnp.sqrt(
+            jnp.sum(grad_gd**2) * jnp.sum(d_impulse**2)
+        )
+        d = jnp.where(usable, d_impulse, d_least)
+        return g, gd, gdd, grad_phi, grad_gd, d
+
+    def sliding_field(t, y, args_, stick, free):
+        def constrained():
+            out = free
+            for i, piece in enumerate(pieces):
+                _, _, gdd, _, grad_gd, d = contact_geometry(piece, t, y, args_)
+                gain = jnp.dot(grad_gd, d)  # d(Φ̈)/dλ
+                force = -safe_divide(gdd, gain, stick[i] & (gain != 0)) * d
+                out = out + jnp.where(stick[i], force, 0.0)
+            return out
+
+        return lax.cond(eqxi.unvmap_any(jnp.any(stick)), constrained, lambda: free)
+
+    def project_to_contact(piece, t, y, args_):
+        """The nearby point of M = {Φ = 0, Φ̇ = 0}: Φ removed along ∇Φ, then Φ̇ along d."""
+        g, _, _, grad_phi, _, _ = contact_geometry(piece, t, y, args_)
+        norm2 = jnp.sum(grad_phi**2)
+        y = y - safe_divide(g, norm2, norm2 > 0) * grad_phi
+        _, gd, _, _, grad_gd, d = contact_geometry(piece, t, y, args_)
+        gain = jnp.dot(grad_gd, d)
+        return y - safe_divide(gd, gain, gain != 0) * d
+
     def local_field(s, y, targs):
-        args_, t_hi, t_lo = targs
-        return sigma * f(abs_time(s, t_hi, t_lo), y, args_)
+        args_, t_hi, t_lo, stick = targs
+        t = abs_time(s, t_hi, t_lo)
+        free = f(t, y, args_)
+        if sticky:
+            free = sliding_field(t, y, args_, stick, free)
+        return sigma * free
 
     term = diffrax.ODETerm(local_field)
 
@@ -413,6 +504,14 @@ def build_program(
         )
         return g, gd, gdd
 
+    def sliding_pull(stick, s, y, t_hi, t_lo, args_):
+        """Φ̈ of the free flow on the surface being slid on: the state leaves when ≥ 0."""
+        rate = jnp.zeros((), dtype)
+        for i, piece in enumerate(pieces):
+            _, _, gdd = slopes_at(piece, 1, s, y, t_hi, t_lo, args_)
+            rate = rate + jnp.where(stick[i], gdd, 0.0)
+        return rate
+
     def on_surface(piece, t, y, args_, x_scale=None, step_ulps=0.0):
         floor = piece.floor(t, y, args_, x_scale)
         if piece.signs:  # the step-length term, with the slope along the true field
@@ -427,8 +526,32 @@ def build_program(
     nan = jnp.array(jnp.nan, dtype)
     mask_shape = (m, max_signs)
 
+    def contact_tests(t_hi, t_lo, y, args_, x_scale, step_ulps=0.0):
+        """Per surface, at a restart: on it (guard the flight's first step), stuck on it,
+        and pushed into it by the free flow.
+
+        Stuck is a tangential restart with the flow pushing in: the state would slide into
+        Φ < 0 from rest (e.g. restitution 0). That is sticking, the end of a Zeno
+        sequence; never tunnel.
+        """
+        t = t_hi + t_lo
+        restart, stuck, pushed = [], [], []
+        for piece in pieces:
+            on, floor = on_surface(piece, t, y, args_, x_scale, step_ulps)
+            restart.append(on)
+            stuck_i = pushed_i = jnp.array(False)
+            for sign in piece.signs:
+                _, gd, gdd = slopes_at(piece, sign, jnp.zeros_like(t), y, t_hi, t_lo, args_)
+                tangential = gd**2 <= 2 * jnp.abs(gdd) * floor
+                stuck_i = stuck_i | (on & tangential & (gdd < 0))
+                pushed_i = pushed_i | (on & (gdd < 0))
+            stuck.append(stuck_i)
+            pushed.append(pushed_i)
+        as_mask = lambda v: jnp.array(v, dtype=bool).reshape((m,))  # noqa: E731
+        return as_mask(restart), as_mask(stuck), as_mask(pushed)
+
     def init(x0, args) -> _Carry:
-        targs0 = (args, t0, jnp.zeros_like(t0))
+        targs0 = (args, t0, jnp.zeros_like(t0), jnp.zeros((m,), bool))
         s_end0 = s_end_of(t0, jnp.zeros_like(t0))
         tnext, controller_state0 = controller.init(
             term, zero, s_end0, x0, dt0, targs0, solver.func, error_order
@@ -441,9 +564,32 @@ def build_program(
         # coordinate, so that a start from a logged post-impact state (x1 = 2e-32 on a wall
         # at x1 = 0, moving in) counts as on the surface and does not re-trigger.
         x0_scale = jnp.full_like(x0, jnp.max(jnp.abs(x0)))
-        restart0 = jnp.array(
-            [on_surface(p, t0, x0, args, x0_scale)[0] for p in pieces], dtype=bool
-        ).reshape((m,))
+        restart0, stuck0, _ = contact_tests(t0, jnp.zeros_like(t0), x0, args, x0_scale)
+        # A start at rest on a surface, pushed in: with zeno="stick", sliding from t0 (or
+        # ZENO at t0 if on two surfaces). With "stop" the flight simply starts, into Φ < 0
+        # (the paper's setting: Φ < 0 is not forbidden, only met from above).
+        status0, zeno_time0 = jnp.array(int(Status.SUCCESS)), nan
+        stick0 = jnp.zeros((m,), bool)
+        log = (
+            jnp.full((max_impacts,), jnp.nan, dtype),
+            jnp.full((max_impacts, n), jnp.nan, dtype),
+            jnp.full((max_impacts, n), jnp.nan, dtype),
+            jnp.full((max_impacts,), -1),
+            jnp.full((max_impacts,), int(ImpactKind.NONE)),
+        )
+        num_impacts0 = jnp.array(0)
+        if sticky:
+            stuck_any = jnp.any(stuck0)
+            starts = stuck_any & (jnp.sum(stuck0) == 1)
+            stick0 = stuck0 & starts
+            x_on = x0
+            for i, piece in enumerate(pieces):
+                x_on = jnp.where(stick0[i], project_to_contact(piece, t0, x0, args), x_on)
+            log = _write_log(log, 0, starts, t0, x0, x_on, jnp.argmax(stick0), int(ImpactKind.STICK))
+            x0 = x_on
+            num_impacts0 = starts.astype(num_impacts0.dtype)
+            status0 = jnp.where(stuck_any & ~starts, int(Status.ZENO), status0)
+            zeno_time0 = jnp.where(stuck_any, t0, zeno_time0)
         if ts is not None:
             save_xs0 = jnp.full((ts.shape[0], n), jnp.nan, dtype)
             save_index0 = jnp.array(0)
@@ -455,20 +601,18 @@ def build_program(
         return _Carry(
             args=args, time_scale=time_scale, s=zero, t_hi=t0, t_lo=jnp.zeros_like(t0), y=x0,
             h=h0, solver_state=solver_state0, controller_state=controller_state0,
-            made_jump=jnp.array(False), restart=restart0, flight_scale=jnp.abs(x0),
+            # (sliding from t0 changes the field the solver's first stage was built with)
+            made_jump=jnp.any(stick0), restart=restart0, flight_scale=jnp.abs(x0),
             landing=jnp.array(False), target=zero,
             pending=jnp.zeros(mask_shape, bool), touch=jnp.zeros(mask_shape, bool),
             boundary=jnp.zeros(mask_shape, bool), h_after=h0,
-            num_impacts=jnp.array(0),
-            log_t=jnp.full((max_impacts,), jnp.nan, dtype),
-            log_pre=jnp.full((max_impacts, n), jnp.nan, dtype),
-            log_post=jnp.full((max_impacts, n), jnp.nan, dtype),
-            log_surface=jnp.full((max_impacts,), -1),
-            log_kind=jnp.full((max_impacts,), int(ImpactKind.NONE)),
-            intervals=jnp.full((3,), jnp.nan, dtype), zeno_time=nan,
+            num_impacts=num_impacts0,
+            log_t=log[0], log_pre=log[1], log_post=log[2], log_surface=log[3], log_kind=log[4],
+            stick=stick0, releasing=jnp.array(False),
+            intervals=jnp.full((3,), jnp.nan, dtype), zeno_time=zeno_time0,
             num_steps=jnp.array(0), num_accepted=jnp.array(0),
-            status=jnp.where(finite0, int(Status.SUCCESS), int(Status.NONFINITE)),
-            done=~finite0, t_final=t0, x_final=x0,
+            status=jnp.where(finite0, status0, int(Status.NONFINITE)),
+            done=~finite0 | (status0 != int(Status.SUCCESS)), t_final=t0, x_final=x0,
             save_index=save_index0, save_xs=save_xs0,
         )
 
@@ -501,7 +645,7 @@ def build_program(
         out_of_steps = ~c_in.done & (c_in.num_steps >= max_steps)
         c = eqx.tree_at(lambda z: z.done, c_in, c_in.done | out_of_steps)
         args_ = c.args
-        targs = (args_, c.t_hi, c.t_lo)
+        targs = (args_, c.t_hi, c.t_lo, c.stick)
         s_end = s_end_of(c.t_hi, c.t_lo)
         sa = c.s
         sb = jnp.where(c.landing, c.target, jnp.minimum(sa + c.h, s_end))
@@ -533,10 +677,11 @@ def build_program(
                 row.append((g, step_ends(g, sa, sb, c.restart[i])))
             ends.append(row)
         candidate = jnp.array(False)
-        for row in ends:
+        for i, row in enumerate(ends):
             for _, e in row:
                 crossing, dip = is_candidate(e)
-                candidate = candidate | crossing | dip
+                # A sliding state is on its surface: no contact with it is searched for.
+                candidate = candidate | ((crossing | dip) & ~c.stick[i])
         candidate = detecting & candidate
 
         def search():
@@ -577,12 +722,38 @@ def build_program(
             )
         else:
             found, times, touch, boundary = no_search()
-        found = found & candidate
+        found = found & candidate & ~c.stick[:, None]
+        times = jnp.where(found, times, jnp.inf)
         event = jnp.any(found)
         # (A scene without surfaces is a plain ODE solve: no contact, ever.)
         first = jax.lax.stop_gradient(jnp.min(times)) if m > 0 else jnp.array(jnp.inf, dtype)
+        releasing = jnp.array(False)
+        if sticky:
+            # Release: the free flow's Φ̈ on the sliding surface reaches 0 from below.
+            def pull(s_, y_):
+                return sliding_pull(c.stick, s_, y_, c.t_hi, c.t_lo, args_)
+
+            pull_a, pull_b = pull(sa, c.y), pull(sb, y1)
+            release = detecting & jnp.any(c.stick) & (pull_b >= 0)
+
+            def locate_release():
+                # bracketed_root wants f(lo) > 0 >= f(hi): search the sign change of −Φ̈;
+                # `hi` is the first point at or past it, so the state leaves pulled away.
+                lo = jnp.where(release & (pull_a < 0), sa, sb)
+                _, hi = bracketed_root(
+                    lambda s_: -pull(s_, y_of(s_)), lo, sb, -pull_a, -pull_b
+                )
+                return hi
+
+            t_release = lax.cond(
+                eqxi.unvmap_any(release), locate_release, lambda: sb
+            )
+            t_release = jax.lax.stop_gradient(jnp.where(release, t_release, jnp.inf))
+            releasing = release & (t_release <= first)
+            first = jnp.minimum(first, t_release)
+            event = event | release
         simultaneous = 1e3 * eps * (jnp.abs(first) + (sb - sa))
-        pending = found & (times <= first + simultaneous)
+        pending = found & (times <= first + simultaneous) & ~releasing
 
         # ---------- the landing step: apply the impact(s) ----------
         # The branch returns only small values: the log and save buffers are written below,
@@ -592,7 +763,7 @@ def build_program(
             return _land(c, y1, sa, sb, interp)
 
         def no_land():
-            slots = sum(len(p.signs) for p in pieces)
+            slots = sum(len(p.signs) for p in pieces) + int(sticky)
             rows = (
                 jnp.zeros((slots,), bool), jnp.zeros((slots, n), dtype), jnp.zeros((slots, n), dtype),
                 jnp.zeros((slots,), jnp.asarray(0).dtype), jnp.zeros((slots,), jnp.asarray(0).dtype),
@@ -658,6 +829,8 @@ def build_program(
                 accept_free, jnp.maximum(c.flight_scale, jnp.abs(y1)), landed.flight_scale
             ),
             landing=go_land,
+            stick=landed.stick,
+            releasing=jnp.where(go_land, releasing, landed.releasing),
             target=jnp.where(go_land, first, c.target),
             pending=jnp.where(go_land, pending, c.pending),
             touch=jnp.where(go_land, touch & pending, c.touch),
@@ -703,7 +876,7 @@ def build_program(
         # One Newton step on the time, with the true vector field: corrects the
         # interpolant's root to the method's accuracy and carries d(time)/d(params) by
         # the implicit function theorem. Driven by the first pending surface.
-        f_star = local_field(s_star, y_star, (args_, t_hi, t_lo))
+        f_star = local_field(s_star, y_star, (args_, t_hi, t_lo, c.stick))
         delta = jnp.zeros_like(s_star)
         chosen = jnp.array(False)
         for i, piece in enumerate(pieces):
@@ -717,6 +890,18 @@ def build_program(
                 ok = use & (jnp.abs(jax.lax.stop_gradient(g)) <= 1e-2 * jnp.abs(jax.lax.stop_gradient(gd)) * width) & (gd != 0)
                 delta = jnp.where(ok, -safe_divide(g, gd, ok), delta)
                 chosen = chosen | use
+        if sticky:
+            # A release: the same Newton step on the free Φ̈ of the sliding surface, along
+            # the sliding flow, so that jacfwd gets the release time's tangent.
+            r, r_dot = jax.jvp(
+                lambda s_, y_: sliding_pull(c.stick, s_, y_, t_hi, t_lo, args_),
+                (s_star, y_star), (jnp.ones_like(s_star), f_star),
+            )
+            width = jax.lax.stop_gradient(jnp.maximum(s_star - sa, 1e-6 * s_star))
+            ok = c.releasing & (
+                jnp.abs(jax.lax.stop_gradient(r)) <= 1e-2 * jnp.abs(jax.lax.stop_gradient(r_dot)) * width
+            ) & (r_dot != 0)
+            delta = jnp.where(ok, -safe_divide(r, r_dot, ok), delta)
         s_event = s_star + delta
         y_event = y_star + f_star * delta
         t_event_hi, t_event_lo = _dd_add(t_hi, t_lo, sigma * s_event)
@@ -728,7 +913,9 @@ def build_program(
         applied_any = jnp.array(False)
         bad_side = jnp.array(False)
         rows = []  # one per (surface, side): (apply, pre, post, surface, kind)
+        applied = []  # per surface
         for i, piece in enumerate(pieces):
+            applied.append(jnp.array(False))
             for k, sign in enumerate(piece.signs):
                 _, gd, _ = slopes_at(piece, sign, s_event, x, t_hi, t_lo, args_)
                 approaching = (gd < 0) | c.touch[i, k]
@@ -751,24 +938,20 @@ def build_program(
                 x = jnp.where(apply, x_new, x)
                 count = count + apply
                 applied_any = applied_any | apply
+                applied[i] = applied[i] | apply
         x_post = x
         num_impacts = c.num_impacts + count
 
         # Restart guard and sticking test at the post-impact state.
-        restart = []
-        stuck = jnp.array(False)
         x_scale = jnp.maximum(flight_scale, jnp.abs(x_post))
-        for piece in pieces:
-            on, floor = on_surface(piece, t_event, x_post, args_, x_scale, step_ulps)
-            restart.append(on)
-            for sign in piece.signs:
-                _, gd, gdd = slopes_at(piece, sign, jnp.zeros_like(s_event), x_post, t_event_hi, t_event_lo, args_)
-                # Tangential restart with the flow pushing into the surface: the state
-                # would slide into Φ < 0 from rest (e.g. restitution 0). That is
-                # sticking, the end of a Zeno sequence; never tunnel.
-                tangential = gd**2 <= 2 * jnp.abs(gdd) * floor
-                stuck = stuck | (on & tangential & (gdd < 0))
-        restart = jnp.array(restart, dtype=bool).reshape((m,))
+        restart, stuck_each, pushed_in = contact_tests(t_event_hi, t_event_lo, x_post, args_, x_scale, step_ulps)
+        released = jnp.zeros((m,), bool)
+        if sticky:
+            # A release lands on a tangential state with Φ̈ ≈ 0: not a new sticking.
+            released = c.stick & c.releasing & lands
+            stuck_each = stuck_each & ~released
+            restart = restart | released
+        stuck = jnp.any(stuck_each)
 
         # Zeno: geometric shrinking of the inter-impact times.
         interval = jax.lax.stop_gradient(s_event)
@@ -782,8 +965,31 @@ def build_program(
         zeno = geometric & (remaining <= zeno_rtol * elapsed)
         t_resolution = h_min_at(t_event, c.time_scale)
         zeno = zeno | (interval <= t_resolution) & (c.num_impacts > 0)
-        zeno_time = jnp.where(zeno, t_event + sigma * remaining, jnp.where(stuck, t_event, nan))
-        zeno = zeno | stuck
+        zeno = zeno & applied_any  # (a release is not an impact)
+        zeno_time = jnp.where(zeno, t_event + sigma * remaining, jnp.where(stuck, t_event, c.zeno_time))
+        if sticky:
+            # Slide on the surface just hit (or found stuck) if the free flow pushes into
+            # it; on two surfaces at once there is no sliding rule: stop (ZENO).
+            want = stuck_each | (zeno & jnp.array(applied) & pushed_in)
+            starts = lands & applied_any & (jnp.sum(want) == 1)
+            zeno = (zeno | stuck) & ~starts
+            stick = jnp.where(starts, want, jnp.where(lands & (c.releasing | applied_any), False, c.stick))
+            x_moved = x_post
+            for i, piece in enumerate(pieces):
+                on_m = project_to_contact(piece, t_event, x_post, args_)
+                x_moved = jnp.where((starts & want[i]) | released[i], on_m, x_moved)
+            event_row = (
+                starts | jnp.any(released), x_post, x_moved,
+                jnp.argmax(want | released), jnp.where(starts, int(ImpactKind.STICK), int(ImpactKind.RELEASE)),
+            )
+            rows.append(event_row)
+            num_impacts = num_impacts + event_row[0]
+            x_post = x_moved
+            # A new sequence of impacts after sliding: forget the old intervals.
+            intervals = jnp.where(starts | c.releasing, jnp.nan, intervals)
+        else:
+            zeno = zeno | stuck
+            stick = c.stick
 
         finite = jnp.all(jnp.isfinite(x_post))
         status = jnp.where(
@@ -800,7 +1006,8 @@ def build_program(
         small = eqx.tree_at(
             lambda z: (
                 z.s, z.t_hi, z.t_lo, z.y, z.h, z.made_jump, z.restart, z.flight_scale, z.num_impacts,
-                z.intervals, z.zeno_time, z.status, z.done, z.t_final, z.x_final,
+                z.intervals, z.zeno_time, z.status, z.done, z.t_final, z.x_final, z.stick,
+                z.releasing,
             ),
             c,
             (
@@ -819,6 +1026,8 @@ def build_program(
                 keep_old(stop, c.done),
                 keep_old(t_event, c.t_final),
                 keep_old(jnp.where(finite, x_post, y_event), c.x_final),
+                keep_old(stick, c.stick),
+                keep_old(False, c.releasing),
             ),
         )
         rows = jax.tree.map(lambda *r: jnp.stack(r), *rows)

@@ -16,7 +16,9 @@ class Status(enum.IntEnum):
     """Stopped right after the `max_impacts`-th impact (the usual way to run "N impacts")."""
     ZENO = 2
     """Impact times accumulate (or the state sticks to a surface): stopped after the last
-    resolved impact; `Solution.zeno_time` estimates the accumulation time."""
+    resolved impact; `Solution.zeno_time` estimates the accumulation time. With
+    `simulate(..., zeno="stick")` the run slides on the surface instead, and ends ZENO only
+    when it would have to slide on two surfaces at once."""
     MAX_STEPS = 3
     """`max_steps` solver steps were taken before reaching `t1`."""
     NONFINITE = 4
@@ -48,7 +50,8 @@ class ImpactKind(enum.IntEnum):
 
     α: interior of Γ, transversal; β: boundary ∂Γ, transversal; γ: tangential contact
     (grazing). Primes are the same types on the image surface Γ̃ = J(Γ), met in backward
-    time. `NONE` pads unused rows of the impact log.
+    time. `NONE` pads unused rows of the impact log. With `simulate(..., zeno="stick")`
+    the log also holds the starts (`STICK`) and ends (`RELEASE`) of sliding phases.
     """
 
     NONE = -1
@@ -58,6 +61,11 @@ class ImpactKind(enum.IntEnum):
     ALPHA_PRIME = 3
     BETA_PRIME = 4
     GAMMA_PRIME = 5
+    STICK = 6
+    """Not an impact: the state starts sliding on the surface (`zeno="stick"`); the
+    logged post state is the pre state projected onto {Φ = 0, Φ̇ = 0}."""
+    RELEASE = 7
+    """Not an impact: the sliding state leaves the surface (the free Φ̈ reaches 0)."""
 
     @property
     def is_grazing(self) -> bool:

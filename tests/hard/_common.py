@@ -75,11 +75,12 @@ ROTATION_WALL = gj.Scene(
 
 @functools.cache
 def runner(scene_name: str, tol: str = "default", max_impacts: int = 1, direction: int = 1,
-           max_steps: int = 100_000, solver=None, allow_float32: bool = False, jac: bool = False):
+           max_steps: int = 100_000, solver=None, allow_float32: bool = False, jac: bool = False,
+           zeno: str = "stop"):
     """jit(simulate) for a named scene with traced (x0, t0, t1, args), compiled once."""
     scene = SCENES[scene_name]
     options = dict(TOLERANCES[tol], max_impacts=max_impacts, direction=direction,
-                   max_steps=max_steps, allow_float32=allow_float32)
+                   max_steps=max_steps, allow_float32=allow_float32, zeno=zeno)
     if solver is not None:
         options["solver"] = solver
 

@@ -10,6 +10,7 @@ import math
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
 import grazejax as gj
 from grazejax import examples as ex
@@ -117,3 +118,33 @@ def test_backward_batch_with_a_non_invertible_lane_keeps_the_other_lanes():
     assert int(batch.num_impacts[0]) == 1
     np.testing.assert_allclose(batch.x_final[0], [x_end, v_before + g * r], rtol=1e-9)
     assert gj.Status(int(batch.status[1])) != gj.Status.SUCCESS or int(batch.num_impacts[1]) == 0
+
+
+def test_zeno_option_is_checked():
+    scene, args = ex.bouncing_ball(), {"g": 9.81, "e": 0.5}
+    with pytest.raises(ValueError, match="zeno must be 'stop' or 'stick'"):
+        gj.simulate(scene, [1.0, 0.0], 0.0, 1.0, args, zeno="slide")
+    with pytest.raises(ValueError, match="forward time only"):
+        gj.simulate(scene, [1.0, 0.0], 1.0, 0.0, args, zeno="stick")
+
+
+def test_sliding_on_two_surfaces_at_once_ends_zeno():
+    """A ball at rest in a corner (floor and a slanted wall, both pushing back): there is
+    no rule for sliding on two surfaces, so zeno="stick" ends ZENO at t0 instead of
+    tunnelling through either."""
+    def field(t, x, a):
+        return jnp.stack([x[2], x[3], jnp.zeros_like(x[2]) + a["gx"], jnp.zeros_like(x[3]) - a["g"]])
+
+    def bounce(normal):
+        def jump(t, x, a):
+            n = jnp.asarray(normal, x.dtype) / math.hypot(*normal)
+            v = x[2:]
+            return jnp.concatenate([x[:2], v - 1.5 * jnp.dot(v, n) * n])
+        return jump
+
+    corner = gj.Scene(field, [
+        gj.Surface(phi=lambda t, x, a: x[1], jump=bounce((0.0, 1.0)), name="floor"),
+        gj.Surface(phi=lambda t, x, a: x[0], jump=bounce((1.0, 0.0)), name="wall"),
+    ])
+    sol = gj.simulate(corner, [0.0, 0.0, 0.0, 0.0], 0.0, 1.0, {"g": 9.81, "gx": -1.0}, zeno="stick")
+    assert status(sol) == gj.Status.ZENO and float(sol.t_final) == 0.0
