@@ -381,3 +381,25 @@ def test_release_time_and_landing_are_differentiable():
     fd = (np.asarray(times(f64(v0 + h))) - np.asarray(times(f64(v0 - h)))) / (2 * h)
     np.testing.assert_allclose(jac, fd, rtol=1e-6)
     record("loop: d(release time)/dv0 vs reference FD (relative)", abs(jac[0] - ref) / abs(ref))
+
+
+@pytest.mark.parametrize("omega,r,A,sigma", [(0.5, 0.5, 1.0, 0.2), (0.3, 0.3, 2.0, 0.5)])
+def test_forced_oscillator_chatters_sticks_to_the_stop_and_releases(omega, r, A, sigma):
+    """The forced impact oscillator (x'' = −2ζx' − x + A cos ωt, stop at x = σ) at low
+    frequency: chatter, then the mass rests on the stop while the forcing pushes it in,
+    and leaves when A cos ωt falls to σ (closed form: ω t_r = acos(σ/A) + 2πm). Every
+    STICK/RELEASE state is (σ, 0)."""
+    args = ex.impact_oscillator_args(zeta=0.05, A=A, omega=omega, sigma=sigma, r=r)
+    sol = runner("oscillator", "tight", max_impacts=400, zeno="stick")(f64([0.0, 0.0]), f64(0.0), f64(60.0), args)
+    assert status(sol) == gj.Status.SUCCESS
+    kinds = np.array([int(k) for k in _kinds(sol)])
+    times = np.asarray(sol.impact_times[: len(kinds)])
+    releases = times[kinds == gj.ImpactKind.RELEASE]
+    assert len(releases) >= 2 and np.sum(kinds == gj.ImpactKind.STICK) >= len(releases)
+    phase = (omega * releases - math.acos(sigma / A)) / (2 * math.pi)
+    err_r = np.max(np.abs(phase - np.round(phase))) * 2 * math.pi / omega
+    assert err_r <= 1e-10
+    on = (kinds == gj.ImpactKind.STICK) | (kinds == gj.ImpactKind.RELEASE)
+    err_on = np.max(np.abs(np.asarray(sol.impact_post[: len(kinds)])[on] - [sigma, 0.0]))
+    assert err_on <= 1e-12
+    record("oscillator stick/release: release time error (closed form)", err_r)
