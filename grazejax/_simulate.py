@@ -1077,13 +1077,18 @@ def _with_buffers(small: _Carry, full: _Carry) -> _Carry:
 
 
 def _write_log(log, row, apply, t, pre, post, surface, kind):
+    # A row that is not applied is written out of bounds and dropped: the buffers are only
+    # written, never read, in the loop, so XLA updates them in place (a read-modify-write
+    # `where(apply, new, log[row])` made it copy every buffer at every iteration under vmap:
+    # per-lane cost grew with max_impacts).
     log_t, log_pre, log_post, log_surface, log_kind = log
+    row = jnp.where(apply, row, log_t.shape[0])
     return (
-        log_t.at[row].set(jnp.where(apply, t, log_t[row])),
-        log_pre.at[row].set(jnp.where(apply, pre, log_pre[row])),
-        log_post.at[row].set(jnp.where(apply, post, log_post[row])),
-        log_surface.at[row].set(jnp.where(apply, surface, log_surface[row])),
-        log_kind.at[row].set(jnp.where(apply, kind, log_kind[row])),
+        log_t.at[row].set(t, mode="drop"),
+        log_pre.at[row].set(pre, mode="drop"),
+        log_post.at[row].set(post, mode="drop"),
+        log_surface.at[row].set(surface, mode="drop"),
+        log_kind.at[row].set(kind, mode="drop"),
     )
 
 
