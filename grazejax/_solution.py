@@ -21,12 +21,15 @@ class Solution(eqx.Module):
     - `t_final`, `x_final`: where the run stopped: `t1` on success, else the time and
       post-impact state of the last impact (`MAX_IMPACTS`, `ZENO`), or the last accepted
       state (`MAX_STEPS`, `NONFINITE`, ...).
-    - `num_impacts`: number of impacts applied (simultaneous impacts count once each).
+    - `num_impacts`: number of rows used in the impact log: impacts applied (simultaneous
+      impacts count once each) plus, with `zeno="stick"`, the starts and ends of sliding
+      (kinds `STICK`, `RELEASE`; count impacts with `impact_kind <= GAMMA_PRIME`).
     - `impact_times`, `impact_pre`, `impact_post`, `impact_surface`, `impact_kind`: the log.
       In backward time (`t1 < t0`) "pre" is the state met first (on Γ̃) and "post" the
       state after the inverse jump; kinds are the primed ones.
     - `status`: a [`grazejax.Status`][] code.
-    - `zeno_time`: estimated accumulation time when `status == ZENO`, else NaN.
+    - `zeno_time`: estimated accumulation time when `status == ZENO` (with
+      `zeno="stick"`: of the last Zeno sequence before sliding), else NaN.
     - `num_steps`, `num_accepted_steps`: solver steps (all / accepted), for cost accounting.
     - `ts`, `xs`: saved times and states, only when `saveat` was given (else `None`).
     """
