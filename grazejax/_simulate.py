@@ -951,6 +951,16 @@ def build_program(
             released = c.stick & c.releasing & lands
             stuck_each = stuck_each & ~released
             restart = restart | released
+            # An impact on another surface while sliding: the state is still on the surface
+            # it slid on, up to the sliding flow's drift (solver tolerance, not round-off,
+            # so the on-surface floor cannot tell); it keeps sliding if not thrown off it.
+            was_on = c.stick & lands & ~c.releasing
+            for i, piece in enumerate(pieces):
+                _, gd, gdd, _, grad_gd, _ = contact_geometry(piece, t_event, x_post, args_)
+                drift = jnp.sum(jnp.abs(grad_gd) * state_tol(x_post))
+                stays = was_on[i] & (gd <= drift) & (gdd < 0)
+                stuck_each = stuck_each.at[i].set(stuck_each[i] | stays)
+            restart = restart | was_on
         stuck = jnp.any(stuck_each)
 
         # Zeno: geometric shrinking of the inter-impact times.

@@ -403,3 +403,35 @@ def test_forced_oscillator_chatters_sticks_to_the_stop_and_releases(omega, r, A,
     err_on = np.max(np.abs(np.asarray(sol.impact_post[: len(kinds)])[on] - [sigma, 0.0]))
     assert err_on <= 1e-12
     record("oscillator stick/release: release time error (closed form)", err_r)
+
+
+def _box_field(t, x, a):
+    return jnp.stack([x[2], x[3], jnp.zeros_like(x[2]), -a["g"] * jnp.ones_like(x[3])])
+
+
+# A point mass on a floor (y = 0) with a wall at x = L; restitution e on both.
+FLOOR_AND_WALL = gj.Scene(_box_field, [
+    gj.Surface(phi=lambda t, x, a: x[1], jump=lambda t, x, a: x.at[3].set(-a["e"] * x[3]), name="floor"),
+    gj.Surface(phi=lambda t, x, a: a["L"] - x[0], jump=lambda t, x, a: x.at[2].set(-a["e"] * x[2]), name="wall"),
+])
+
+
+@pytest.mark.parametrize("y0,vx", [(0.0, 1.0), (0.2, 0.3)])
+def test_sliding_mass_hits_a_wall_and_keeps_sliding(y0, vx):
+    """Sliding on the floor (from t0, or after a bounce-chatter sequence) into a wall: the
+    wall impact is an ordinary impact, the mass keeps sliding on the floor (it used to fall
+    through it: the sliding drift is above the round-off floor) and comes back at −e·vx.
+    Horizontal motion is uniform: wall hit at L/vx, x(t1) = L − e·vx·(t1 − L/vx)."""
+    g, e, L, t1 = 9.81, 0.5, 1.0, 1.5 / vx
+    sol = gj.simulate(FLOOR_AND_WALL, [0.0, y0, vx, 0.0], 0.0, t1, {"g": g, "e": e, "L": L},
+                      rtol=1e-12, atol=1e-12, max_impacts=200, zeno="stick")
+    assert status(sol) == gj.Status.SUCCESS
+    k = int(sol.num_impacts)
+    surfaces = np.asarray(sol.impact_surface[:k])
+    kinds = _kinds(sol)
+    (wall,) = np.flatnonzero(surfaces == 1)
+    assert kinds[wall] == gj.ImpactKind.ALPHA and kinds[wall + 1] == gj.ImpactKind.STICK
+    assert kinds[-1] == gj.ImpactKind.STICK
+    assert abs(float(sol.impact_times[wall]) - L / vx) <= 1e-12 * t1
+    expected = [L - e * vx * (t1 - L / vx), 0.0, -e * vx, 0.0]
+    np.testing.assert_allclose(sol.x_final, expected, atol=1e-10)
