@@ -1,29 +1,61 @@
-"""`sweep`: many runs of one scene, batched with vmap, chunked, sharded across devices.
+"""`sweep`: many runs of one scene, batched, chunked, sharded across devices.
 
 A sweep is `jax.vmap(simulate)` plus the three things a batch of thousands to millions of
 lanes needs:
 
 - **bounded memory**: lanes run in chunks of `chunk_size`; every chunk has the same shape
   (the last one is padded), so the program compiles once;
-- **devices**: each chunk is split across `devices` with a `NamedSharding` over a 1-D mesh,
-  using JAX's own runtime (on several hosts, call `jax.distributed.initialize()` first and
-  pass `devices=jax.devices()`: every process then runs the same call on its share);
+- **devices**: each chunk is split across `devices` over a 1-D mesh, using JAX's own runtime
+  (on several hosts, call `jax.distributed.initialize()` first and pass
+  `devices=jax.devices()`: every process then runs the same call on its share);
 - **the slowest-lane problem**: a vmapped while loop runs until its slowest lane finishes
-  (DESIGN.md §4), so a chunk that mixes 2-impact and 200-impact lanes costs as if all had 200.
-  `balance="presort"` runs a cheap loose-tolerance pass first, sorts the lanes by the number
-  of steps it took, and chunks them in that order so that each chunk holds lanes of similar
-  cost; results come back in the caller's order. `benchmarks/bench_sweep.py` measures the gain.
+  (DESIGN.md §4), so a chunk that mixes 2-impact and 200-impact lanes costs as if all had
+  200. With `balance="refill"` (the default) each device runs its share of a chunk on a pool
+  of `pool_size` lane slots (`_pool.py`): whenever an eighth of the slots have finished, their
+  results are written out and the next lanes of the queue are loaded into them; at the end
+  the last few running lanes move to a pool an eighth as wide. The pool runs the very loop
+  of `simulate` (`_simulate.build_program`: same `init`, same `step`, same `finish`), so a
+  lane computes what `simulate` computes for it alone, whichever lanes share the pool.
+  `balance="none"` is plain `jax.vmap(simulate)` per chunk, sharded with a `NamedSharding`.
+  `benchmarks/bench_sweep.py` measures the gain (see benchmarks/README.md).
+
+**Reproducibility.** With `balance="refill"`, results are bit-for-bit independent of
+`chunk_size`, `pool_size` (≥ 2) and the number of devices. Against `balance="none"` and
+against single `simulate` calls they agree to rounding: XLA fuses the same loop differently
+in different programs (and specialises batch size 1), which can move a result by an ulp
+(measured: 7e-18 in one post-impact state of ex1dof; single runs differ from any batch by
+~1e-14 after a few impacts). Statuses, impact counts and step counts agree exactly in the
+tests.
 """
 
+import inspect
 from collections.abc import Sequence
-from typing import Any, Literal
+from typing import Any, Literal, NamedTuple
 
 import jax
 import numpy as np
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
+from ._pool import run_pool
 from ._scene import Scene
-from ._simulate import simulate
+from ._simulate import _throw_if_failed, build_program, simulate
 from ._solution import Solution
+from ._validate import validate_inputs
+
+_BALANCES = ("refill", "none")
+# simulate's keyword options and their defaults (the pool calls build_program directly).
+_SIMULATE_OPTIONS = {
+    name: p.default
+    for name, p in inspect.signature(simulate).parameters.items()
+    if p.kind is inspect.Parameter.KEYWORD_ONLY
+}
+# ... of which build_program takes these (every option that shapes the loop).
+_PROGRAM_OPTIONS = [
+    name
+    for name, p in inspect.signature(build_program).parameters.items()
+    if p.kind is inspect.Parameter.KEYWORD_ONLY
+]
+_DEFAULT_POOL = 1024
 
 
 def _batch_size(x0s, args, args_batched):
@@ -37,7 +69,7 @@ def _batch_size(x0s, args, args_batched):
     flags = jax.tree.leaves(args_batched) if args_batched is not None else []
     if args_batched is not None and len(flags) != len(leaves):
         raise ValueError("args_batched must have the structure of args (one bool per leaf)")
-    for i, (leaf, batched) in enumerate(zip(leaves, flags)):
+    for i, (leaf, batched) in enumerate(zip(leaves, flags, strict=True)):
         if batched:
             shape = np.shape(leaf)
             if len(shape) == 0:
@@ -71,7 +103,8 @@ def sweep(
     args_batched=None,
     chunk_size: int | None = None,
     devices: Sequence[jax.Device] | None = None,
-    balance: Literal["none", "presort"] = "none",
+    balance: Literal["refill", "none"] = "refill",
+    pool_size: int | None = None,
     progress: bool = True,
     **simulate_kwargs: Any,
 ) -> Solution:
@@ -85,18 +118,29 @@ def sweep(
     - `args_batched`: a pytree of bools with the structure of `args`. Default: a leaf is
       batched iff its leading axis equals the batch size (pass it explicitly when a
       parameter vector happens to have that length).
-    - `chunk_size`: lanes per compiled call (memory stays bounded by one chunk). Default:
-      the whole batch, up to 65536 lanes.
+    - `chunk_size`: lanes per compiled call (memory stays bounded by one chunk's results).
+      Default: the whole batch, up to 65536 lanes.
     - `devices`: devices to shard each chunk over (default: all of `jax.devices()`). Results
       do not depend on the number of devices.
-    - `balance`: `"presort"` to group lanes of similar cost (see the module docstring).
+    - `balance`: how lanes of different cost share the vectorised loop:
+        - `"refill"` (default): each device runs its lanes on a pool of `pool_size` slots,
+          loading the next lane into a slot when its lane finishes, so that a chunk costs
+          about the sum of its lanes' steps rather than its slowest lane's steps times the
+          chunk size (see the module docstring);
+        - `"none"`: `jax.vmap(simulate)` over the whole chunk: every lane of a chunk
+          waits for the slowest one.
+    - `pool_size`: slots per device for `balance="refill"` (default: 1024, or the chunk's
+      share per device if smaller). Wider pools vectorise better; narrower ones waste
+      less on the last lanes of a chunk.
     - `progress`: show a tqdm progress bar across chunks.
     - `**simulate_kwargs`: every keyword option of `simulate` (rtol, atol, solver,
       max_impacts, saveat, ...).
 
     **Returns:** a [`grazejax.Solution`][] whose fields are NumPy arrays with a leading batch
-    axis, in the order of the inputs. A lane that fails (NaN, Zeno, max steps) reports it in
-    its own `status` and never affects the others.
+    axis, in the order of the inputs (with `saveat`, `ts` too has one row per lane). A lane
+    that fails (NaN, Zeno, max steps) reports it in its own `status` and never affects the
+    others. Results do not depend on `chunk_size`, `pool_size` or the devices (see the
+    module docstring for what "the same" means across `balance` values).
 
     **Example:**
 
@@ -105,6 +149,19 @@ def sweep(
     sols = gj.sweep(examples.ex1dof(), x0s, 0.0, 200.0, examples.ex1dof_args(-0.2))
     ```
     """
+    unknown = set(simulate_kwargs) - set(_SIMULATE_OPTIONS)
+    if unknown:
+        raise TypeError(f"sweep got unknown simulate options: {sorted(unknown)}")
+    if "direction" in simulate_kwargs:
+        raise TypeError("sweep sets direction itself (from t0 and t1)")
+    if balance not in _BALANCES:
+        raise ValueError(f"balance must be one of {_BALANCES}, got {balance!r}")
+    if pool_size is not None and (
+        not isinstance(pool_size, (int, np.integer)) or isinstance(pool_size, bool) or pool_size <= 0
+    ):
+        raise ValueError(f"pool_size must be a positive integer, got {pool_size!r}")
+    if pool_size is not None and balance != "refill":
+        raise ValueError("pool_size applies to balance='refill' only")
     if args_batched is None and args is not None:
         x0_size = np.shape(x0s)[0] if np.ndim(x0s) == 2 else None
         if x0_size is not None:
@@ -122,16 +179,17 @@ def sweep(
         raise ValueError(f"t0 == t1 == {float(t0)}: nothing to simulate")
     if chunk_size is None:
         chunk_size = min(batch, 65536)
-    if not isinstance(chunk_size, (int, np.integer)) or chunk_size <= 0:
+    if not isinstance(chunk_size, (int, np.integer)) or isinstance(chunk_size, bool) or chunk_size <= 0:
         raise ValueError(f"chunk_size must be a positive integer, got {chunk_size!r}")
-    if balance not in ("none", "presort"):
-        raise ValueError(f"balance must be 'none' or 'presort', got {balance!r}")
     devices = list(jax.devices()) if devices is None else list(devices)
     if not devices:
         raise ValueError("devices is empty")
     num_devices = len(devices)
     # Every device gets the same number of lanes per chunk.
     chunk_size = -(-min(chunk_size, batch) // num_devices) * num_devices
+    width = None
+    if balance == "refill":
+        width = int(min(pool_size or _DEFAULT_POOL, chunk_size // num_devices))
 
     x0s = np.asarray(x0s, dtype=np.float64)
     x0_batched = x0s.ndim == 2
@@ -139,17 +197,10 @@ def sweep(
 
     def lane_inputs(index):
         x = x0s[index] if x0_batched else x0s
-        a = jax.tree.map(
-            lambda leaf, b: np.asarray(leaf)[index] if b else leaf, args, flags
-        )
+        a = jax.tree.map(lambda leaf, b: np.asarray(leaf)[index] if b else leaf, args, flags)
         return x, a
 
-    run_chunk = _compiled_chunk(scene, t0, t1, args, flags, x0_batched, devices, simulate_kwargs)
-
-    order = np.arange(batch)
-    if balance == "presort":
-        order = _presort_order(scene, t0, t1, lane_inputs, batch, chunk_size, flags, x0_batched,
-                               args, devices, simulate_kwargs)
+    run_chunk = _compiled_chunk(scene, t0, t1, flags, x0_batched, devices, width, simulate_kwargs)
 
     starts = range(0, batch, chunk_size)
     if progress:
@@ -158,91 +209,127 @@ def sweep(
         starts = tqdm(starts, total=len(starts), desc="grazejax.sweep", unit="chunk")
     pieces = []
     for start in starts:
-        index = order[start : start + chunk_size]
-        padded = np.concatenate([index, np.full(chunk_size - len(index), index[0])])
+        index = np.arange(start, min(start + chunk_size, batch))
+        size = len(index)
+        # Padding repeats the first lane (the pool never runs it; vmap runs it in step).
+        padded = np.concatenate([index, np.full(chunk_size - size, index[0])])
         x, a = lane_inputs(padded)
-        out = run_chunk(x, a)
-        pieces.append(jax.tree.map(lambda leaf: np.asarray(leaf)[: len(index)], out))
-    stacked = jax.tree.map(lambda *leaves: np.concatenate(leaves, axis=0), *pieces)
-    inverse = np.empty_like(order)
-    inverse[order] = np.arange(batch)
-    return jax.tree.map(lambda leaf: leaf[inverse], stacked)
+        out = run_chunk(x, a, np.arange(chunk_size) < size)
+        pieces.append(jax.tree.map(lambda leaf, size=size: np.asarray(leaf)[:size], out))
+    return jax.tree.map(lambda *leaves: np.concatenate(leaves, axis=0), *pieces)
 
 
-def _compiled_chunk(scene, t0, t1, args, flags, x0_batched, devices, simulate_kwargs):
-    """The jitted, vmapped (and sharded) chunk runner, compiled once per configuration.
+def _compiled_chunk(scene, t0, t1, flags, x0_batched, devices, width, simulate_kwargs):
+    """The jitted (and sharded) chunk runner, compiled once per configuration.
 
     Numbers (x0s, args, t0, t1, saveat) are arguments; structure (scene, which leaves are
-    batched, solver and options, devices) is the cache key, so repeated sweeps over new
-    values reuse the compiled program instead of recompiling a fresh closure each call.
+    batched, solver and options, devices, pool width) is the cache key, so repeated sweeps
+    over new values reuse the compiled program instead of recompiling a fresh closure.
     """
     options = dict(simulate_kwargs)
     saveat = options.pop("saveat", None)
     direction = 1 if float(t1) > float(t0) else -1
     in_axes_args = jax.tree.map(lambda b: 0 if b else None, flags)
-    treedef = jax.tree.structure(in_axes_args, is_leaf=lambda v: v is None)
-    key = (scene, x0_batched, treedef, tuple(jax.tree.leaves(in_axes_args, is_leaf=lambda v: v is None)),
-           tuple(sorted(options.items())), tuple(devices), direction)
+    is_none = lambda v: v is None  # noqa: E731
+    key = (scene, x0_batched, jax.tree.structure(in_axes_args, is_leaf=is_none),
+           tuple(jax.tree.leaves(in_axes_args, is_leaf=is_none)),
+           tuple(sorted(options.items())), tuple(devices), direction, width)
     try:
         hash(key)
     except TypeError:  # unhashable option values: compile without caching
-        return _build_chunk(scene, in_axes_args, x0_batched, devices, options, direction, flags)(
-            t0, t1, saveat)
-    return _cached_chunk(key, scene, in_axes_args, x0_batched, devices, options, direction, flags)(
-        t0, t1, saveat)
+        build = _build_chunk(scene, in_axes_args, x0_batched, devices, options, direction, width)
+    else:
+        if key not in _CHUNK_CACHE:
+            _CHUNK_CACHE[key] = _build_chunk(
+                scene, in_axes_args, x0_batched, devices, options, direction, width
+            )
+        build = _CHUNK_CACHE[key]
+    return build(t0, t1, saveat)
 
 
 _CHUNK_CACHE: dict = {}
 
 
-def _cached_chunk(key, *build_args):
-    if key not in _CHUNK_CACHE:
-        _CHUNK_CACHE[key] = _build_chunk(*build_args)
-    return _CHUNK_CACHE[key]
+def _build_chunk(scene, in_axes_args, x0_batched, devices, options, direction, width):
+    x_axis = 0 if x0_batched else None
+    is_none = lambda v: v is None  # noqa: E731
 
+    if width is None:
 
-def _build_chunk(scene, in_axes_args, x0_batched, devices, options, direction, flags):
-    def one(x0, a, t0, t1, saveat):
-        return simulate(scene, x0, t0, t1, a, saveat=saveat, direction=direction, **options)
+        def run(x0s, a, valid, t0, t1, saveat):
+            del valid  # padding lanes run like the others
+            return jax.vmap(
+                lambda x0, aa: simulate(
+                    scene, x0, t0, t1, aa, saveat=saveat, direction=direction, **options
+                ),
+                in_axes=(x_axis, in_axes_args),
+            )(x0s, a)
 
-    batched = jax.vmap(one, in_axes=(0 if x0_batched else None, in_axes_args, None, None, None))
-    if len(devices) == 1:
-        compiled = jax.jit(batched)
-        device = devices[0]
+    else:
+        kw = {**_SIMULATE_OPTIONS, **options}
 
-        def bind(t0, t1, saveat):
-            return lambda x, a: compiled(
-                jax.device_put(x, device), jax.device_put(a, device), t0, t1, saveat
+        def run(x0s, a, valid, t0, t1, saveat):
+            # One lane's inputs as the template: validate_inputs and build_program only
+            # read shapes and dtypes from them (the values are traced).
+            lane_x0 = x0s if x_axis is None else x0s[0]
+            lane_args = jax.tree.map(
+                lambda leaf, axis: leaf if axis is None else leaf[0], a, in_axes_args,
+                is_leaf=is_none,
             )
+            checked = validate_inputs(
+                scene, lane_x0, t0, t1, lane_args, max_impacts=kw["max_impacts"],
+                max_steps=kw["max_steps"], direction=direction,
+                allow_float32=kw["allow_float32"], saveat=saveat,
+            )
+            program = build_program(scene, checked, **{k: kw[k] for k in _PROGRAM_OPTIONS})
+            x0s = x0s.astype(checked.x0.dtype)  # as simulate's validate_inputs does
+            sol = run_pool(program, x0s, a, (x_axis, in_axes_args), valid, width)
+            return _throw_if_failed(sol) if kw["throw"] else sol
 
-        return bind
-    mesh = jax.sharding.Mesh(np.array(devices), ("lanes",))
-    lanes = jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec("lanes"))
-    replicated = jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec())
-    x_sharding = lanes if x0_batched else replicated
-    a_sharding = jax.tree.map(lambda b: lanes if b else replicated, flags)
-    compiled = jax.jit(batched, out_shardings=lanes)
+    if len(devices) == 1:
+        device = devices[0]
+        compiled = jax.jit(run)
 
-    def bind(t0, t1, saveat):
-        return lambda x, a: compiled(
-            jax.device_put(x, x_sharding), jax.tree.map(jax.device_put, a, a_sharding), t0, t1, saveat
-        )
+        def place(x, a, valid):
+            return jax.device_put((x, a, valid), device)
 
-    return bind
+        return lambda t0, t1, saveat: _Runner(compiled, place, (t0, t1, saveat))
+
+    mesh = Mesh(np.array(devices), ("lanes",))
+    lanes, replicated = PartitionSpec("lanes"), PartitionSpec()
+    x_spec = lanes if x0_batched else replicated
+    a_specs = jax.tree.map(lambda axis: replicated if axis is None else lanes, in_axes_args,
+                           is_leaf=is_none)
+    if width is None:
+        # Plain vmap: XLA partitions the batch over the mesh.
+        compiled = jax.jit(run, out_shardings=NamedSharding(mesh, lanes))
+    else:
+        # Each device runs its own pool on its share of the chunk.
+        compiled = jax.jit(jax.shard_map(
+            run, mesh=mesh, in_specs=(x_spec, a_specs, lanes, replicated, replicated, replicated),
+            out_specs=lanes, check_vma=False,
+        ))
+    x_sharding = NamedSharding(mesh, x_spec)
+    a_sharding = jax.tree.map(lambda spec: NamedSharding(mesh, spec), a_specs)
+    valid_sharding = NamedSharding(mesh, lanes)
+
+    def place(x, a, valid):
+        return (jax.device_put(x, x_sharding), jax.tree.map(jax.device_put, a, a_sharding),
+                jax.device_put(valid, valid_sharding))
+
+    return lambda t0, t1, saveat: _Runner(compiled, place, (t0, t1, saveat))
 
 
-def _presort_order(scene, t0, t1, lane_inputs, batch, chunk_size, flags, x0_batched, args,
-                   devices, simulate_kwargs):
-    """Order lanes by the steps a loose-tolerance pass needs (a cheap cost proxy)."""
-    loose = dict(simulate_kwargs)
-    loose.pop("saveat", None)
-    loose.pop("stepsize_controller", None)
-    loose["rtol"], loose["atol"] = 1e-4, 1e-6
-    probe = _compiled_chunk(scene, t0, t1, args, flags, x0_batched, devices, loose)
-    cost = np.empty(batch)
-    for start in range(0, batch, chunk_size):
-        index = np.arange(start, min(start + chunk_size, batch))
-        padded = np.concatenate([index, np.full(chunk_size - len(index), index[0])])
-        x, a = lane_inputs(padded)
-        cost[index] = np.asarray(probe(x, a).num_steps)[: len(index)]
-    return np.argsort(cost, kind="stable")
+class _Runner(NamedTuple):
+    """One chunk's compiled program with its shared inputs; `lower` is for benchmarks
+    (e.g. `runner.lower(x, a, valid).compile().memory_analysis()`)."""
+
+    compiled: Any
+    place: Any
+    shared: tuple  # t0, t1, saveat
+
+    def __call__(self, x, a, valid):
+        return self.compiled(*self.place(x, a, valid), *self.shared)
+
+    def lower(self, x, a, valid):
+        return self.compiled.lower(*self.place(x, a, valid), *self.shared)

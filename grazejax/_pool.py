@@ -1,0 +1,158 @@
+"""A refilling pool of lanes: `sweep`'s answer to the slowest-lane problem.
+
+A vmapped while loop runs until its slowest lane finishes (DESIGN.md §4): a batch that mixes
+2-impact and 200-impact lanes costs as if every lane had 200. The pool instead runs
+`Program.step` (one solver step, see `_simulate.build_program`) on `width` lane *slots*, and
+whenever enough slots have finished it writes their results into the output rows of their
+lanes and loads the next queued lanes into those slots. All of it is one XLA program: a
+`lax.while_loop` of refills around a `lax.while_loop` of steps, with dynamic gathers and
+scatters; every predicate is an unbatched scalar, so nothing is selected per lane per step.
+
+Every lane computes exactly what `simulate` computes for it alone: the same `init`, then the
+same `step` until it stops running (a finished lane is frozen by `step` itself, exactly as in
+`simulate`'s loop), then the same `finish`. Which other lanes share the pool changes nothing
+but the cost.
+
+**The tail.** Once the queue is empty the pool can only drain: with k of `width` slots still
+running, a step costs as much as with all of them. When at most `width // TAIL` slots are left
+running, they are compacted into a pool of `width // TAIL` slots that runs to the end.
+"""
+
+from typing import Any
+
+import equinox as eqx
+import jax
+import jax.lax as lax
+import jax.numpy as jnp
+
+from ._solution import Solution
+
+# Refill once at least `width // REFILL` slots have finished (or none is running): a refill
+# costs about one vmapped `init` and one whole-pool select, a few steps' worth; refilling
+# less often leaves finished slots idle for longer. Tuned in benchmarks/bench_sweep.py.
+REFILL = 8
+# The drain pool is `width // TAIL` slots wide, for pools of at least MIN_TAIL_WIDTH slots.
+TAIL = 8
+MIN_TAIL_WIDTH = 256
+
+
+def _where_rows(mask, new, old):
+    """Row-wise select between two batched pytrees (rows = the leading axis)."""
+
+    def pick(a, b):
+        return jnp.where(mask.reshape(mask.shape + (1,) * (a.ndim - 1)), a, b)
+
+    return jax.tree.map(pick, new, old)
+
+
+def _freeze(carry, mask):
+    # An empty slot must not run: mark it finished. `step` then leaves it unchanged.
+    return eqx.tree_at(lambda c: c.done, carry, carry.done | mask)
+
+
+def run_pool(program, x0s, args, in_axes: tuple[Any, Any], valid, width: int) -> Solution:
+    """Run every valid lane of `(x0s, args)` through `program` on a refilling pool.
+
+    **Arguments:**
+
+    - `program`: a `_simulate.Program` (init, step, running, finish of one lane).
+    - `x0s`, `args`: the lanes' inputs; batched leaves carry the lanes along axis 0 as
+      given by `in_axes = (x0 axis, args axes)` (`0` or `None`, as for `jax.vmap`).
+    - `valid`: bool[lanes]; the valid lanes come first (the rest is padding, never run).
+    - `width`: number of slots (static).
+
+    **Returns:** the lanes' `Solution`s stacked along axis 0 (padding rows are zeros).
+    """
+    num_lanes = valid.shape[0]
+    count = jnp.sum(valid.astype(jnp.int32))
+    width = max(1, min(width, num_lanes))
+    refill_at = max(1, width // REFILL)
+    # A narrow tail pool only pays for its compilation (a second copy of the step) when it
+    # is much narrower than the pool; small sweeps care more about compile time.
+    tail = width // TAIL if width >= MIN_TAIL_WIDTH else width
+
+    init = jax.vmap(program.init, in_axes=in_axes)
+    step = jax.vmap(program.step)
+    running = jax.vmap(program.running)
+    finish = jax.vmap(program.finish)
+
+    def load(lanes, ok):
+        lanes = jnp.clip(lanes, 0, jnp.maximum(count - 1, 0))
+        x = x0s if in_axes[0] is None else x0s[lanes]
+        a = jax.tree.map(
+            lambda leaf, axis: leaf if axis is None else leaf[lanes],
+            args, in_axes[1], is_leaf=lambda v: v is None,
+        )
+        return _freeze(init(x, a), ~ok)
+
+    # The pool starts empty (zeros, frozen): the first refill loads it, so that `init` is
+    # compiled once. Output rows: index `num_lanes` is out of bounds and dropped (a slot
+    # with nothing to write).
+    shapes = jax.eval_shape(load, jnp.zeros(width, jnp.int32), jnp.zeros(width, bool))
+    carry = _freeze(jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes),
+                    jnp.ones(width, bool))
+    out = jax.tree.map(
+        lambda s: jnp.zeros((num_lanes,) + s.shape[1:], s.dtype), jax.eval_shape(finish, shapes)
+    )
+    slot_lane = jnp.full(width, -1)  # -1: an empty slot
+    queue_at = jnp.array(0)  # the next lane to load
+
+    def write(out, carry, slot_lane, rows):
+        index = jnp.where(rows, slot_lane, num_lanes)
+        return jax.tree.map(lambda o, v: o.at[index].set(v, mode="drop"), out, finish(carry))
+
+    def draining(live, slot_lane, queue_at):
+        # Hand over to the narrow tail pool: the queue is empty and few slots still run.
+        if tail == width:
+            return jnp.array(False)
+        return (queue_at >= count) & (jnp.sum((live & (slot_lane >= 0)).astype(jnp.int32)) <= tail)
+
+    # ---- phase 1: the pool, refilled from the queue ----
+
+    def steps_cond(state):
+        carry, slot_lane, queue_at = state
+        live = running(carry)
+        finished = jnp.sum(((slot_lane >= 0) & ~live).astype(jnp.int32))
+        return jnp.any(live) & (finished < refill_at) & ~draining(live, slot_lane, queue_at)
+
+    def steps_body(state):
+        carry, slot_lane, queue_at = state
+        return step(carry), slot_lane, queue_at
+
+    def refill_cond(state):
+        carry, slot_lane, queue_at, _ = state
+        more = jnp.any(slot_lane >= 0) | (queue_at < count)
+        return more & ~draining(running(carry), slot_lane, queue_at)
+
+    def refill_body(state):
+        carry, slot_lane, queue_at, out = state
+        carry, slot_lane, queue_at = lax.while_loop(
+            steps_cond, steps_body, (carry, slot_lane, queue_at)
+        )
+        finished = (slot_lane >= 0) & ~running(carry)
+        out = write(out, carry, slot_lane, finished)
+        free = finished | (slot_lane < 0)
+        lane = queue_at + jnp.cumsum(free.astype(jnp.int32)) - 1
+        loaded = free & (lane < count)
+        carry = _where_rows(loaded, load(lane, loaded), carry)
+        slot_lane = jnp.where(loaded, lane, jnp.where(free, -1, slot_lane))
+        queue_at = queue_at + jnp.sum(loaded.astype(jnp.int32))
+        return carry, slot_lane, queue_at, out
+
+    carry, slot_lane, queue_at, out = lax.while_loop(
+        refill_cond, refill_body, (carry, slot_lane, queue_at, out)
+    )
+    if tail == width:
+        return out
+
+    # ---- phase 2: the tail, compacted into `tail` slots ----
+    # Finished lanes are written first; the (at most `tail`) running ones move, in slot
+    # order, to the narrow pool and run to the end there.
+    live = running(carry) & (slot_lane >= 0)
+    out = write(out, carry, slot_lane, (slot_lane >= 0) & ~live)
+    order = jnp.argsort(~live, stable=True)[:tail]
+    moved = live[order]
+    carry = _freeze(jax.tree.map(lambda leaf: leaf[order], carry), ~moved)
+    slot_lane = jnp.where(moved, slot_lane[order], -1)
+    carry = lax.while_loop(lambda c: jnp.any(running(c)), step, carry)
+    return write(out, carry, slot_lane, slot_lane >= 0)
