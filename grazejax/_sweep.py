@@ -6,8 +6,10 @@ lanes needs:
 - **bounded memory**: lanes run in chunks of `chunk_size`; every chunk has the same shape
   (the last one is padded), so the program compiles once;
 - **devices**: each chunk is split across `devices` over a 1-D mesh, using JAX's own runtime
-  (on several hosts, call `jax.distributed.initialize()` first and pass
-  `devices=jax.devices()`: every process then runs the same call on its share);
+  (on several hosts, call `jax.distributed.initialize()` in every process and make the
+  same `sweep` call with the same inputs: each process runs the lanes of its own devices,
+  and every process gets the whole result back; tested with two processes joined over gloo
+  on one machine, bit-identical to one process);
 - **the slowest-lane problem**: a vmapped while loop runs until its slowest lane finishes
   (DESIGN.md §4), so a chunk that mixes 2-impact and 200-impact lanes costs as if all had
   200. With `balance="refill"` (the default) each device runs its share of a chunk on a pool
@@ -215,8 +217,28 @@ def sweep(
         padded = np.concatenate([index, np.full(chunk_size - size, index[0])])
         x, a = lane_inputs(padded)
         out = run_chunk(x, a, np.arange(chunk_size) < size)
-        pieces.append(jax.tree.map(lambda leaf, size=size: np.asarray(leaf)[:size], out))
+        pieces.append(jax.tree.map(lambda leaf, size=size: _to_host(leaf)[:size], out))
     return jax.tree.map(lambda *leaves: np.concatenate(leaves, axis=0), *pieces)
+
+
+def _put(value, sharding):
+    """`device_put` onto a mesh that may span several processes. Each process builds its own
+    shards from its (identical) copy of the inputs: multi-process `device_put` instead
+    checks that the copies are equal, which fails on a NaN lane (NaN != NaN)."""
+    if jax.process_count() == 1:
+        return jax.device_put(value, sharding)
+    value = np.asarray(value)
+    return jax.make_array_from_callback(value.shape, sharding, lambda index: value[index])
+
+
+def _to_host(leaf) -> np.ndarray:
+    """A chunk's output as NumPy. On several hosts the output spans other processes'
+    devices: every process gathers the whole chunk (so each returns the full result)."""
+    if isinstance(leaf, jax.Array) and not leaf.is_fully_addressable:
+        from jax.experimental import multihost_utils
+
+        leaf = multihost_utils.process_allgather(leaf, tiled=True)
+    return np.asarray(leaf)
 
 
 def _compiled_chunk(scene, t0, t1, flags, x0_batched, devices, width, simulate_kwargs):
@@ -314,8 +336,7 @@ def _build_chunk(scene, in_axes_args, x0_batched, devices, options, direction, w
     valid_sharding = NamedSharding(mesh, lanes)
 
     def place(x, a, valid):
-        return (jax.device_put(x, x_sharding), jax.tree.map(jax.device_put, a, a_sharding),
-                jax.device_put(valid, valid_sharding))
+        return (_put(x, x_sharding), jax.tree.map(_put, a, a_sharding), _put(valid, valid_sharding))
 
     return lambda t0, t1, saveat: _Runner(compiled, place, (t0, t1, saveat))
 
