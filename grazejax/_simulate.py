@@ -314,12 +314,9 @@ def simulate(
     print(sol.summary())
     ```
     """
-    checked = validate_inputs(
-        scene, x0, t0, t1, args, max_impacts=max_impacts, max_steps=max_steps,
-        direction=direction, allow_float32=allow_float32, saveat=saveat,
-    )
-    program = build_program(
-        scene, checked, solver=solver, rtol=rtol, atol=atol,
+    checked, program = prepare(
+        scene, x0, t0, t1, args, saveat=saveat, direction=direction,
+        allow_float32=allow_float32, solver=solver, rtol=rtol, atol=atol,
         stepsize_controller=stepsize_controller, dt0=dt0, max_impacts=max_impacts,
         max_steps=max_steps, zeno_rtol=zeno_rtol, zeno=zeno,
     )
@@ -336,6 +333,23 @@ def simulate(
     if throw:
         sol = _throw_if_failed(sol)
     return sol
+
+
+def prepare(scene, x0, t0, t1, args, *, saveat, direction, allow_float32, max_impacts,
+            max_steps, **loop_options):
+    """Check the inputs of one run and build its loop: `(checked inputs, Program)`.
+
+    Shared by `simulate` and `sweep`'s pool, which passes one lane's inputs as the template.
+    `loop_options` are `build_program`'s other keyword options.
+    """
+    checked = validate_inputs(
+        scene, x0, t0, t1, args, max_impacts=max_impacts, max_steps=max_steps,
+        direction=direction, allow_float32=allow_float32, saveat=saveat,
+    )
+    program = build_program(
+        scene, checked, max_impacts=max_impacts, max_steps=max_steps, **loop_options
+    )
+    return checked, program
 
 
 class Program(eqx.Module):
@@ -877,18 +891,23 @@ def build_program(
         # interpolant's root to the method's accuracy and carries d(time)/d(params) by
         # the implicit function theorem. Driven by the first pending surface.
         f_star = local_field(s_star, y_star, (args_, t_hi, t_lo, c.stick))
+        # Accept corrections up to 1% of the landing step, but never less than ~1e-6 of the
+        # flight: a step can end ulps before the contact, and the next one then lands after
+        # a few ulps of width.
+        width = jax.lax.stop_gradient(jnp.maximum(s_star - sa, 1e-6 * s_star))
+
+        def newton(use, value, slope, delta):
+            small = jnp.abs(jax.lax.stop_gradient(value)) <= 1e-2 * jnp.abs(jax.lax.stop_gradient(slope)) * width
+            ok = use & small & (slope != 0)
+            return jnp.where(ok, -safe_divide(value, slope, ok), delta)
+
         delta = jnp.zeros_like(s_star)
         chosen = jnp.array(False)
         for i, piece in enumerate(pieces):
             for k, sign in enumerate(piece.signs):
                 g, gd, _ = slopes_at(piece, sign, s_star, y_star, t_hi, t_lo, args_)
-                # Accept corrections up to 1% of the landing step, but never less than
-                # ~1e-6 of the flight: a step can end ulps before the contact, and the
-                # next one then lands after a few ulps of width.
-                width = jax.lax.stop_gradient(jnp.maximum(s_star - sa, 1e-6 * s_star))
                 use = c.pending[i, k] & ~c.touch[i, k] & ~chosen
-                ok = use & (jnp.abs(jax.lax.stop_gradient(g)) <= 1e-2 * jnp.abs(jax.lax.stop_gradient(gd)) * width) & (gd != 0)
-                delta = jnp.where(ok, -safe_divide(g, gd, ok), delta)
+                delta = newton(use, g, gd, delta)
                 chosen = chosen | use
         if sticky:
             # A release: the same Newton step on the free Φ̈ of the sliding surface, along
@@ -897,11 +916,7 @@ def build_program(
                 lambda s_, y_: sliding_pull(c.stick, s_, y_, t_hi, t_lo, args_),
                 (s_star, y_star), (jnp.ones_like(s_star), f_star),
             )
-            width = jax.lax.stop_gradient(jnp.maximum(s_star - sa, 1e-6 * s_star))
-            ok = c.releasing & (
-                jnp.abs(jax.lax.stop_gradient(r)) <= 1e-2 * jnp.abs(jax.lax.stop_gradient(r_dot)) * width
-            ) & (r_dot != 0)
-            delta = jnp.where(ok, -safe_divide(r, r_dot, ok), delta)
+            delta = newton(c.releasing, r, r_dot, delta)
         s_event = s_star + delta
         y_event = y_star + f_star * delta
         t_event_hi, t_event_lo = _dd_add(t_hi, t_lo, sigma * s_event)
