@@ -40,23 +40,17 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from ._pool import run_pool
 from ._scene import Scene
-from ._simulate import _throw_if_failed, build_program, simulate
+from ._simulate import _throw_if_failed, prepare, simulate
 from ._solution import Solution
-from ._validate import validate_inputs
 
 _BALANCES = ("refill", "none")
-# simulate's keyword options and their defaults (the pool calls build_program directly).
+# simulate's keyword options and their defaults (the pool builds the loop with `prepare`,
+# as simulate does).
 _SIMULATE_OPTIONS = {
     name: p.default
     for name, p in inspect.signature(simulate).parameters.items()
     if p.kind is inspect.Parameter.KEYWORD_ONLY
 }
-# ... of which build_program takes these (every option that shapes the loop).
-_PROGRAM_OPTIONS = [
-    name
-    for name, p in inspect.signature(build_program).parameters.items()
-    if p.kind is inspect.Parameter.KEYWORD_ONLY
-]
 _DEFAULT_POOL = 1024
 
 
@@ -288,25 +282,26 @@ def _build_chunk(scene, in_axes_args, x0_batched, devices, options, direction, w
             )(x0s, a)
 
     else:
+        # Every option of simulate but those the chunk sets itself.
         kw = {**_SIMULATE_OPTIONS, **options}
+        throw = kw.pop("throw")
+        for own in ("saveat", "direction"):
+            kw.pop(own)
 
         def run(x0s, a, valid, t0, t1, saveat):
-            # One lane's inputs as the template: validate_inputs and build_program only
-            # read shapes and dtypes from them (the values are traced).
+            # One lane's inputs as the template: `prepare` only reads shapes and dtypes
+            # from them (the values are traced).
             lane_x0 = x0s if x_axis is None else x0s[0]
             lane_args = jax.tree.map(
                 lambda leaf, axis: leaf if axis is None else leaf[0], a, in_axes_args,
                 is_leaf=is_none,
             )
-            checked = validate_inputs(
-                scene, lane_x0, t0, t1, lane_args, max_impacts=kw["max_impacts"],
-                max_steps=kw["max_steps"], direction=direction,
-                allow_float32=kw["allow_float32"], saveat=saveat,
+            checked, program = prepare(
+                scene, lane_x0, t0, t1, lane_args, saveat=saveat, direction=direction, **kw
             )
-            program = build_program(scene, checked, **{k: kw[k] for k in _PROGRAM_OPTIONS})
             x0s = x0s.astype(checked.x0.dtype)  # as simulate's validate_inputs does
             sol = run_pool(program, x0s, a, (x_axis, in_axes_args), valid, width)
-            return _throw_if_failed(sol) if kw["throw"] else sol
+            return _throw_if_failed(sol) if throw else sol
 
     if len(devices) == 1:
         device = devices[0]
