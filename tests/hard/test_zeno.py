@@ -267,7 +267,8 @@ def test_chatter_stick_release_cycles_on_the_table(e, lift, omega):
     record("table stick/release cycles: state on the table", err_on)
 
 
-def _loop_field(t, x, a):
+def _point_mass_in_gravity(t, x, a):
+    """x = (qx, qy, vx, vy): free flight under gravity −g ŷ."""
     return jnp.stack([x[2], x[3], jnp.zeros_like(x[2]), -a["g"] * jnp.ones_like(x[3])])
 
 
@@ -279,7 +280,7 @@ def _loop_jump(t, x, a):
 
 # A particle inside a vertical circle of radius R (gravity −g ŷ), Newton restitution e.
 LOOP = gj.Scene(
-    _loop_field,
+    _point_mass_in_gravity,
     [gj.Surface(phi=lambda t, x, a: a["R"] ** 2 - x[0] ** 2 - x[1] ** 2, jump=_loop_jump, name="loop")],
 )
 
@@ -405,12 +406,8 @@ def test_forced_oscillator_chatters_sticks_to_the_stop_and_releases(omega, r, A,
     record("oscillator stick/release: release time error (closed form)", err_r)
 
 
-def _box_field(t, x, a):
-    return jnp.stack([x[2], x[3], jnp.zeros_like(x[2]), -a["g"] * jnp.ones_like(x[3])])
-
-
 # A point mass on a floor (y = 0) with a wall at x = L; restitution e on both.
-FLOOR_AND_WALL = gj.Scene(_box_field, [
+FLOOR_AND_WALL = gj.Scene(_point_mass_in_gravity, [
     gj.Surface(phi=lambda t, x, a: x[1], jump=lambda t, x, a: x.at[3].set(-a["e"] * x[3]), name="floor"),
     gj.Surface(phi=lambda t, x, a: a["L"] - x[0], jump=lambda t, x, a: x.at[2].set(-a["e"] * x[2]), name="wall"),
 ])
