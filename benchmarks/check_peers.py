@@ -98,7 +98,7 @@ def main():
         t = time.perf_counter()
         hr = HeyokaImpactRunner("ex1dof", tol=tol)
         compile_s = time.perf_counter() - t
-        us = median_us(lambda: hr.run(x0, 0.0, t1, N_IMP, **prm), repeats=200)
+        us = median_us(lambda hr=hr: hr.run(x0, 0.0, t1, N_IMP, **prm), repeats=200)
         steps = hr.run(x0, 0.0, t1, N_IMP, **prm)["nfev"]
         print(f"   heyoka tol={tol:.0e}         : {us:12.1f} us/run   "
               f"(steps {steps}, compile {1e3 * compile_s:.0f} ms)")

@@ -454,7 +454,7 @@ class HeyokaImpactRunner:
         )
         self.fp_type = fp_type
         self.ta = hy.taylor_adaptive(
-            list(zip(xs, rhs)),
+            list(zip(xs, rhs, strict=True)),
             [fp_type(0.0)] * sysm.n,
             tol=fp_type(tol),
             fp_type=fp_type,
