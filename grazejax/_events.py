@@ -27,56 +27,6 @@ import jax.numpy as jnp
 
 from ._roots import bracketed_root, safe_divide
 
-# Contacts whose depth is below this many ulps of the gap's natural scale are "touches":
-# reported as grazing (γ). See `gap_floor`.
-FLOOR_ULPS = 64.0
-
-
-def gap_floor(gap, t, x, args, x_scale=None):
-    """Round-off floor of a gap value at (t, x): 64 ulps of Σ_k |∂Φ/∂x_k|·|x_k| + |∂Φ/∂t|·|t|.
-
-    This is the documented resolution of contact detection: an excursion deeper than the
-    floor is always an impact, a miss by more than the floor never is, and anything in
-    between is reported as a grazing contact (γ). It scales with the problem's units.
-    `x_scale` overrides |x| per coordinate (the loop passes the largest magnitudes met in
-    the current flight, and adds a term for the length of the step).
-    """
-    t, x = jax.lax.stop_gradient((t, x))
-    dphi_dt, dphi_dx = jax.grad(lambda t_, x_: gap(t_, x_, args), argnums=(0, 1))(t, x)
-    eps = jnp.finfo(x.dtype).eps
-    # Per coordinate: Σ_k |∂Φ/∂x_k|·scale_k, so that a large velocity does not inflate the
-    # floor of a gap that depends on positions only (units with L/T ≫ L).
-    x_abs = jnp.abs(x) if x_scale is None else jax.lax.stop_gradient(x_scale)
-    scale = jnp.sum(jnp.abs(dphi_dx) * x_abs) + jnp.abs(dphi_dt * t)
-    return jax.lax.stop_gradient(FLOOR_ULPS * eps * scale + jnp.finfo(x.dtype).tiny)
-
-
-def closed_piece(where, t, x, args, tol=None):
-    """Evaluate `where` on the closure of the piece, to within the state's accuracy.
-
-    Returns `(inside, on_boundary)`. A point counts as inside if `where` holds at it or
-    at one of its 2n neighbours x ± δ_k e_k, with δ_k = max(1e3 ulps of ‖x‖∞, tol(x)_k)
-    (the loop passes ten times the solver tolerance); it is on the boundary ∂Γ (a β or γ
-    point in the paper) if those evaluations disagree. This makes the paper's closed
-    pieces (e.g. `x2 <= 0`) robust to the last bits of a computed state: a contact
-    exactly at ∂Γ is not lost to x2 = +1e-12.
-    """
-    if where is None:
-        return jnp.array(True), jnp.array(False)
-    x = jax.lax.stop_gradient(x)
-    n = x.shape[0]
-    eps = jnp.finfo(x.dtype).eps
-    delta = 1e3 * eps * (jnp.abs(x) + jnp.max(jnp.abs(x)) + jnp.finfo(x.dtype).tiny)
-    if tol is not None:
-        delta = jnp.maximum(delta, jax.lax.stop_gradient(tol(x)))
-    offsets = jnp.concatenate(
-        [jnp.zeros((1, n), x.dtype), jnp.diag(delta), -jnp.diag(delta)], axis=0
-    )
-    values = jax.vmap(lambda dx: jnp.asarray(where(t, x + dx, args), bool))(offsets)
-    inside = jnp.any(values)
-    on_boundary = inside & ~jnp.all(values)
-    return inside, on_boundary
-
 
 class StepEnds(NamedTuple):
     """Guarded gap values and slopes of one surface at the two ends of a step."""
@@ -105,9 +55,19 @@ def guarded(g, sa, restart):
     return G
 
 
-def step_ends(g, sa, sb, restart) -> StepEnds:
-    g_a, slope_a = jax.jvp(g, (sa,), (jnp.ones_like(sa),))
-    g_b, slope_b = jax.jvp(g, (sb,), (jnp.ones_like(sb),))
+def step_ends(g, sa, sb, restart, g_a, g_b) -> StepEnds:
+    """Gap values and slopes at the step's ends.
+
+    `g_a`, `g_b` are the gap at the solver's own states y(sa), y(sb), not at the
+    interpolant: the interpolant reproduces its end states only to round-off, and a
+    crossing that ends a step exactly (an elastic ball's step ends where its flight does)
+    could read g > 0 on the interpolant while the state the next step starts from has
+    g < 0 — and no later step would ever see the sign change (a ball falling through an
+    impenetrable floor). With the states' own values, consecutive steps share their end
+    values, so every sign change of the sequence of states is seen by exactly one step.
+    """
+    slope_a = jax.jvp(g, (sa,), (jnp.ones_like(sa),))[1]
+    slope_b = jax.jvp(g, (sb,), (jnp.ones_like(sb),))[1]
     g_start = jnp.where(restart, slope_a, g_a)
     return StepEnds(g_start, g_b, slope_a, slope_b)
 

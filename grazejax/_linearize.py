@@ -50,7 +50,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
-from ._events import closed_piece
+from ._geometry import closed_piece
 from ._scene import Scene, Surface
 from ._simulate import simulate
 from ._solution import Solution

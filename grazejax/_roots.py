@@ -28,6 +28,15 @@ def bracketed_root(fn, lo, hi, f_lo, f_hi, *, rel_width: float = 0.0, max_iter: 
     ball's Zeno sequence).
     """
     lo, hi, f_lo, f_hi = (lax.stop_gradient(v) for v in (lo, hi, f_lo, f_hi))
+    # The values `fn` closes over (the step's interpolant, args) are held constant too: a
+    # while loop whose body reads differentiated values cannot be transposed, so reverse
+    # mode would fail here although no derivative is wanted from the search.
+    fn_closed, consts = jax.closure_convert(fn, lo)
+    consts = [lax.stop_gradient(c) for c in consts]
+
+    def fn(s):  # noqa: F811
+        return fn_closed(s, *consts)
+
     eps = jnp.finfo(jnp.result_type(lo)).eps
     target = jnp.maximum(rel_width * (hi - lo), 4 * eps * jnp.maximum(jnp.abs(lo), jnp.abs(hi)))
 

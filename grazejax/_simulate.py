@@ -25,7 +25,6 @@ Design (and why it is not a loop of `diffeqsolve` calls with a `diffrax.Event`):
 """
 
 from collections.abc import Callable
-from dataclasses import dataclass
 from typing import Any
 
 import diffrax
@@ -35,118 +34,23 @@ import jax
 import jax.lax as lax
 import jax.numpy as jnp
 
-from ._events import FLOOR_ULPS, closed_piece, gap_floor, is_candidate, locate, step_ends
+from ._adjoint import REVERSE_HINT, loop_kinds
+from ._events import is_candidate, locate, step_ends
+from ._geometry import (
+    FLOOR_ULPS,
+    backward_piece,
+    contact_frame,
+    forward_piece,
+    gap_rates,
+    is_tangential,
+    project_to_contact,
+)
 from ._roots import bracketed_root, safe_divide
-from ._scene import Scene, Surface
+from ._scene import Scene
 from ._solution import Solution
 from ._status import ImpactKind, Status
+from ._stepping import error_or_zero, loop_controller
 from ._validate import validate_inputs
-
-# --------------------------------------------------------------------------------------
-# Internal surfaces: the forward pieces, or their images in backward time.
-# --------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class _Piece:
-    """A surface as the loop sees it, in the loop's own (possibly reversed) time."""
-
-    gap: Callable  # gap(t, x, args): Φ_i, or Φ̃_i = Φ_i ∘ J_i⁻¹ in backward time
-    jump: Callable  # J_i, or J_i⁻¹
-    inside: Callable  # inside(t, x, args) -> (in closed piece, on boundary)
-    signs: tuple[int, ...]  # +1: impact on downward crossings; (+1, -1): either way
-    check_jump_side: bool  # forward, impenetrable surfaces: J must land on the free side
-    floor: Callable  # floor(t, x, args, x_scale): the contact floor of `gap` (see gap_floor)
-
-
-def _newton_inverse(surface: Surface) -> Callable:
-    """J⁻¹ by Newton's method, with a hand-written implicit-function-theorem JVP.
-
-    Why not `optx.root_find`: its implicit differentiation calls `lineax.linear_solve`,
-    which *raises* on a singular Jacobian (a jump that is not invertible, e.g. v → 0·v),
-    killing a whole vmapped batch. Here a failed or singular solve gives a NaN preimage —
-    no impact is detected through it — and never an exception.
-    """
-
-    def jump_jacobian(t, z, args):
-        return jax.jacfwd(lambda zz: surface.jump(t, zz, args))(z)
-
-    def solve(t, x, args):
-        t, x, args = jax.lax.stop_gradient((t, x, args))
-
-        def cond(carry):
-            z, it, converged = carry
-            return (it < 50) & ~converged & jnp.all(jnp.isfinite(z))
-
-        def body(carry):
-            z, it, _ = carry
-            step = jnp.linalg.solve(jump_jacobian(t, z, args), surface.jump(t, z, args) - x)
-            z = z - step
-            converged = jnp.max(jnp.abs(step)) <= 1e-14 * (1 + jnp.max(jnp.abs(z)))
-            return z, it + 1, converged
-
-        guess = 2 * x - surface.jump(t, x, args)
-        z, _, _ = lax.while_loop(cond, body, (guess, jnp.array(0), jnp.array(False)))
-        residual = jnp.max(jnp.abs(surface.jump(t, z, args) - x))
-        ok = jnp.all(jnp.isfinite(z)) & (residual <= 1e-10 * (1 + jnp.max(jnp.abs(x))))
-        return jnp.where(ok, z, jnp.nan)
-
-    @jax.custom_jvp
-    def inverse(t, x, args):
-        return solve(t, x, args)
-
-    @inverse.defjvp
-    def inverse_jvp(primals, tangents):
-        # J(t, z, args) = x  ⇒  D_zJ dz = dx − D_tJ dt − D_argsJ dargs.
-        t, x, args = primals
-        dt, dx, dargs = tangents
-        z = solve(t, x, args)
-        _, dJ = jax.jvp(lambda tt, aa: surface.jump(tt, z, aa), (t, args), (dt, dargs))
-        dz = jnp.linalg.solve(jump_jacobian(t, z, args), dx - dJ)
-        return z, dz
-
-    return inverse
-
-
-def _forward_piece(surface: Surface) -> _Piece:
-    def inside(t, x, args, tol):
-        return closed_piece(surface.where, t, x, args, tol)
-
-    def floor(t, x, args, x_scale):
-        return gap_floor(surface.phi, t, x, args, x_scale)
-
-    return _Piece(surface.phi, surface.jump, inside, (1,), surface.impenetrable, floor)
-
-
-def _backward_piece(surface: Surface, vector_field) -> _Piece:
-    inverse = surface.inverse_jump or _newton_inverse(surface)
-
-    def gap(t, x, args):
-        return surface.phi(t, inverse(t, x, args), args)
-
-    def inside(t, x, args, tol):
-        # x ∈ Γ̃ is an impact point in backward time iff z = J⁻¹(x) is a forward impact
-        # point: inside the piece, and met while Φ was not increasing.
-        z = jax.lax.stop_gradient(inverse(t, x, args))
-        in_piece, on_boundary = closed_piece(surface.where, t, z, args, tol)
-        _, approach = jax.jvp(
-            lambda t_, z_: surface.phi(t_, z_, args),
-            (t, z),
-            (jnp.ones_like(t), vector_field(t, z, args)),
-        )
-        floor = gap_floor(surface.phi, t, z, args)
-        scale = jnp.sqrt(floor * jnp.max(jnp.abs(vector_field(t, z, args))) + floor)
-        ok = in_piece & (approach <= scale) & jnp.all(jnp.isfinite(z))
-        return ok, on_boundary
-
-    def floor(t, x, args, x_scale):
-        # The floor of Φ at the preimage z: no derivative through the Newton inverse,
-        # whose Jacobian may be singular where the jump is not invertible.
-        z = jax.lax.stop_gradient(inverse(t, x, args))
-        return gap_floor(surface.phi, t, z, args, x_scale)
-
-    return _Piece(gap, inverse, inside, (1, -1), False, floor)
-
 
 # --------------------------------------------------------------------------------------
 # Loop state
@@ -231,6 +135,7 @@ def simulate(
     direction: int | None = None,
     allow_float32: bool = False,
     throw: bool = False,
+    adjoint=None,
 ) -> Solution:
     r"""Simulate x' = f(t, x) with jumps x → J_i(x) on the surface pieces Γ_i, from t0 to t1.
 
@@ -270,6 +175,12 @@ def simulate(
     - `direction`: `+1` or `-1`; needed only when `t0`, `t1` are traced (inside `jit`).
     - `allow_float32`: grazejax runs in float64; a float32 `x0` is an error unless this
       is set (contact floors then scale with float32's epsilon).
+    - `adjoint`: how the loop is differentiated, as a Diffrax adjoint.
+      `None`/`diffrax.ForwardMode()` (default): `jax.jvp`/`jax.jacfwd`;
+      `diffrax.RecursiveCheckpointAdjoint(checkpoints=...)`: `jax.grad`/`jax.vjp`
+      (recomputes steps between checkpoints); `diffrax.DirectAdjoint()`: both modes, at the
+      memory cost of every step. Event-time tangents are the same in every mode (the
+      implicit function theorem at the landing step).
     - `throw`: raise if the run does not end with `SUCCESS`, `MAX_IMPACTS` or `ZENO`
       (only outside `vmap`; batches report per-lane status instead).
 
@@ -318,7 +229,7 @@ def simulate(
         scene, x0, t0, t1, args, saveat=saveat, direction=direction,
         allow_float32=allow_float32, solver=solver, rtol=rtol, atol=atol,
         stepsize_controller=stepsize_controller, dt0=dt0, max_impacts=max_impacts,
-        max_steps=max_steps, zeno_rtol=zeno_rtol, zeno=zeno,
+        max_steps=max_steps, zeno_rtol=zeno_rtol, zeno=zeno, adjoint=adjoint,
     )
 
     def cond(c):
@@ -328,11 +239,32 @@ def simulate(
         # are frozen by `step` itself, so the loop can run until the last lane is done.
         return eqxi.unvmap_any(program.running(c))
 
-    final = lax.while_loop(cond, program.step, program.init(checked.x0, args))
+    final = run_loop(cond, program, program.init(checked.x0, args), adjoint, max_steps)
     sol = program.finish(final)
+    _raise_if_bad_start(sol)
     if throw:
         sol = _throw_if_failed(sol)
     return sol
+
+
+def run_loop(cond, program: "Program", init, adjoint, max_steps: int):
+    """`while cond: step`, as the loop kind that `adjoint` asks for (see `_adjoint`)."""
+    kinds = loop_kinds(adjoint)
+    if kinds.outer == "lax":
+        final = lax.while_loop(cond, program.step, init)
+        # Name the fix if someone asks for reverse mode (the bare error names lax.while_loop).
+        return _mark_forward_only(final)
+    return eqxi.while_loop(
+        cond, program.step, init, max_steps=max_steps + 1, kind=kinds.outer,
+        checkpoints=kinds.checkpoints,
+    )
+
+
+def _mark_forward_only(tree):
+    is_float = lambda leaf: eqx.is_inexact_array(leaf)  # noqa: E731
+    floats, others = eqx.partition(tree, is_float)
+    floats = eqxi.nondifferentiable_backward(floats, msg=REVERSE_HINT)
+    return eqx.combine(floats, others)
 
 
 def prepare(scene, x0, t0, t1, args, *, saveat, direction, allow_float32, max_impacts,
@@ -368,7 +300,7 @@ class Program(eqx.Module):
 
 def build_program(
     scene: Scene, checked, *, solver, rtol, atol, stepsize_controller, dt0, max_impacts,
-    max_steps, zeno_rtol, zeno="stop",
+    max_steps, zeno_rtol, zeno="stop", adjoint=None,
 ) -> Program:
     """The loop functions for `scene`, with inputs checked by `validate_inputs`.
 
@@ -388,21 +320,28 @@ def build_program(
 
     if solver is None:
         solver = diffrax.Tsit5()
-    if stepsize_controller is None:
-        stepsize_controller = diffrax.PIDController(rtol=rtol, atol=atol)
-    controller = stepsize_controller.wrap(1)
+    # Diffrax's solvers with an embedded error estimate are its adaptive solvers (Euler and
+    # the stochastic ones are not).
+    has_error = isinstance(solver, diffrax.AbstractAdaptiveSolver)
+    controller = loop_controller(
+        stepsize_controller, solver, rtol=rtol, atol=atol, dt0=dt0, has_error_estimate=has_error
+    )
     solver = _with_implicit_tolerances(solver, controller)
     # Runge-Kutta stages default to a checkpointed loop (custom_vjp), which forward-mode
-    # autodiff cannot enter; a plain lax loop supports jvp, jacfwd and vmap.
-    if getattr(solver, "scan_kind", "lax") is None:
-        solver = eqx.tree_at(lambda s: s.scan_kind, solver, "lax", is_leaf=lambda x: x is None)
+    # autodiff cannot enter; a plain lax loop supports jvp, jacfwd and vmap. The adjoint
+    # decides (see `_adjoint`); a kind the user set on the solver is kept.
+    kinds = loop_kinds(adjoint)
+    if getattr(solver, "scan_kind", "lax") is None and kinds.stages is not None:
+        solver = eqx.tree_at(
+            lambda s: s.scan_kind, solver, kinds.stages, is_leaf=lambda x: x is None
+        )
 
     f = scene.vector_field
     if sigma > 0:
-        pieces = tuple(_forward_piece(s) for s in scene.surfaces)
+        pieces = tuple(forward_piece(s) for s in scene.surfaces)
         kinds = (ImpactKind.ALPHA, ImpactKind.BETA, ImpactKind.GAMMA)
     else:
-        pieces = tuple(_backward_piece(s, f) for s in scene.surfaces)
+        pieces = tuple(backward_piece(s, f) for s in scene.surfaces)
         kinds = (ImpactKind.ALPHA_PRIME, ImpactKind.BETA_PRIME, ImpactKind.GAMMA_PRIME)
     m = len(pieces)
     max_signs = max((len(p.signs) for p in pieces), default=1)
@@ -424,34 +363,7 @@ def build_program(
     sticky = zeno == "stick" and m > 0
 
     def contact_geometry(piece, t, y, args_):
-        """Φ, Φ̇, Φ̈ along the free flow; ∇Φ, ∇Φ̇; the contact force direction d (simulate)."""
-        ones = jnp.ones_like(t)
-
-        def phi(t_, y_):
-            return piece.gap(t_, y_, args_)
-
-        def phi_dot(t_, y_):
-            return jax.jvp(phi, (t_, y_), (ones, f(t_, y_, args_)))[1]
-
-        g, grad_phi = jax.value_and_grad(phi, argnums=1)(t, y)
-        gd, gdd = jax.jvp(phi_dot, (t, y), (ones, f(t, y, args_)))
-        grad_gd = jax.grad(phi_dot, argnums=1)(t, y)
-        norm2 = jnp.sum(grad_phi**2)
-
-        def tangent(v):  # the part of v along which Φ does not change
-            return v - safe_divide(jnp.dot(v, grad_phi), norm2, norm2 > 0) * grad_phi
-
-        # The force acts where the jump law puts its impulses: (DJ − I)∇Φ̇ spans the
-        # velocities for a mechanical impact law (for Newton's law it is the normal on the
-        # velocities). Without an impulse there (DJ = I), the least-norm direction.
-        impulse = jax.jacfwd(lambda y_: piece.jump(t, y_, args_))(y) - jnp.eye(y.shape[0], dtype=y.dtype)
-        d_impulse = tangent(impulse @ grad_gd)
-        d_least = tangent(grad_gd)
-        usable = jnp.abs(jnp.dot(grad_gd, d_impulse)) > 1e-8 * jnp.sqrt(
-            jnp.sum(grad_gd**2) * jnp.sum(d_impulse**2)
-        )
-        d = jnp.where(usable, d_impulse, d_least)
-        return g, gd, gdd, grad_phi, grad_gd, d
+        return contact_frame(piece.gap, piece.jump, f, t, y, args_)
 
     def sliding_field(t, y, args_, stick, free):
         def constrained():
@@ -465,14 +377,8 @@ def build_program(
 
         return lax.cond(eqxi.unvmap_any(jnp.any(stick)), constrained, lambda: free)
 
-    def project_to_contact(piece, t, y, args_):
-        """The nearby point of M = {Φ = 0, Φ̇ = 0}: Φ removed along ∇Φ, then Φ̇ along d."""
-        g, _, _, grad_phi, _, _ = contact_geometry(piece, t, y, args_)
-        norm2 = jnp.sum(grad_phi**2)
-        y = y - safe_divide(g, norm2, norm2 > 0) * grad_phi
-        _, gd, _, _, grad_gd, d = contact_geometry(piece, t, y, args_)
-        gain = jnp.dot(grad_gd, d)
-        return y - safe_divide(gd, gain, gain != 0) * d
+    def project_onto_contact(piece, t, y, args_):
+        return project_to_contact(piece.gap, piece.jump, f, t, y, args_)
 
     def local_field(s, y, targs):
         args_, t_hi, t_lo, stick = targs
@@ -503,20 +409,8 @@ def build_program(
         return g
 
     def slopes_at(piece, sign, s, y, t_hi, t_lo, args_):
-        """g, ġ, g̈ along the true vector field at (s, y)."""
-        t = abs_time(s, t_hi, t_lo)
-
-        def gdot(t_, y_):
-            return jax.jvp(
-                lambda tt, yy: sign * piece.gap(tt, yy, args_),
-                (t_, y_),
-                (sigma * jnp.ones_like(t_), sigma * f(t_, y_, args_)),
-            )
-
-        (g, gd), (_, gdd) = jax.jvp(
-            gdot, (t, y), (sigma * jnp.ones_like(t), sigma * f(t, y, args_))
-        )
-        return g, gd, gdd
+        """g, ġ, g̈ along the true vector field at (s, y), in the loop's clock."""
+        return gap_rates(piece.gap, f, abs_time(s, t_hi, t_lo), y, args_, sign, sigma)
 
     def sliding_pull(stick, s, y, t_hi, t_lo, args_):
         """Φ̈ of the free flow on the surface being slid on: the state leaves when ≥ 0."""
@@ -556,7 +450,7 @@ def build_program(
             stuck_i = pushed_i = jnp.array(False)
             for sign in piece.signs:
                 _, gd, gdd = slopes_at(piece, sign, jnp.zeros_like(t), y, t_hi, t_lo, args_)
-                tangential = gd**2 <= 2 * jnp.abs(gdd) * floor
+                tangential = is_tangential(gd, gdd, floor)
                 stuck_i = stuck_i | (on & tangential & (gdd < 0))
                 pushed_i = pushed_i | (on & (gdd < 0))
             stuck.append(stuck_i)
@@ -564,13 +458,28 @@ def build_program(
         as_mask = lambda v: jnp.array(v, dtype=bool).reshape((m,))  # noqa: E731
         return as_mask(restart), as_mask(stuck), as_mask(pushed)
 
+    def _starts_inside(t, x, args_, x_scale):
+        """x0 strictly inside an impenetrable piece (beyond its contact floor)."""
+        inside_any = jnp.array(False)
+        for piece in pieces:
+            if piece.check_jump_side:
+                floor = piece.floor(t, x, args_, x_scale)
+                in_piece, _ = piece.inside(t, x, args_, state_tol)
+                inside_any = inside_any | ((piece.gap(t, x, args_) < -floor) & in_piece)
+        return inside_any
+
     def init(x0, args) -> _Carry:
         targs0 = (args, t0, jnp.zeros_like(t0), jnp.zeros((m,), bool))
         s_end0 = s_end_of(t0, jnp.zeros_like(t0))
         tnext, controller_state0 = controller.init(
             term, zero, s_end0, x0, dt0, targs0, solver.func, error_order
         )
-        h0 = jnp.minimum(tnext, s_end0)
+        # Step sizes carry no derivative: the flow's derivative does not depend on how it
+        # was stepped, and the controller's choice depends on the state through an error
+        # norm that is not differentiable where the error is zero (from x0 = 0 the step
+        # size's tangent leaked into jacfwd of x'' = −x over 2π: [[−16, −3.2], [3.2, −16]]
+        # instead of the identity). The end of the run (t1) and the event times keep theirs.
+        h0 = jax.lax.stop_gradient(jnp.minimum(tnext, s_end0))
         solver_state0 = solver.init(term, zero, h0, x0, targs0)
         time_scale = jnp.maximum(jnp.abs(t0), 1e3 * jnp.abs(h0))
         time_scale = jnp.maximum(time_scale, jnp.where(jnp.isfinite(t1), jnp.abs(t1), 0.0))
@@ -582,7 +491,10 @@ def build_program(
         # A start at rest on a surface, pushed in: with zeno="stick", sliding from t0 (or
         # ZENO at t0 if on two surfaces). With "stop" the flight simply starts, into Φ < 0
         # (the paper's setting: Φ < 0 is not forbidden, only met from above).
-        status0, zeno_time0 = jnp.array(int(Status.SUCCESS)), nan
+        status0 = jnp.where(
+            _starts_inside(t0, x0, args, x0_scale), int(Status.BAD_START), int(Status.SUCCESS)
+        )
+        zeno_time0 = nan
         stick0 = jnp.zeros((m,), bool)
         log = (
             jnp.full((max_impacts,), jnp.nan, dtype),
@@ -598,7 +510,7 @@ def build_program(
             stick0 = stuck0 & starts
             x_on = x0
             for i, piece in enumerate(pieces):
-                x_on = jnp.where(stick0[i], project_to_contact(piece, t0, x0, args), x_on)
+                x_on = jnp.where(stick0[i], project_onto_contact(piece, t0, x0, args), x_on)
             log = _write_log(log, 0, starts, t0, x0, x_on, jnp.argmax(stick0), int(ImpactKind.STICK))
             x0 = x_on
             num_impacts0 = starts.astype(num_impacts0.dtype)
@@ -640,6 +552,17 @@ def build_program(
         def local(j):
             return sigma * ((ts[jnp.minimum(j, num - 1)] - c.t_hi) - c.t_lo)
 
+        if kinds.outer != "lax":
+            # Reverse mode cannot transpose the data-dependent save loop below: evaluate
+            # the interpolant at every requested time and keep those of this step (costs
+            # len(saveat) evaluations per step, only with a reverse-capable adjoint).
+            j = jnp.arange(num)
+            s_j = local(j)
+            mine = (j >= c.save_index) & (s_j <= s_stop)
+            values = jax.vmap(lambda s_: interp.evaluate(jnp.clip(s_, sa, s_stop)))(s_j)
+            save_xs = jnp.where(mine[:, None], values, c.save_xs)
+            return c.save_index + jnp.sum(mine), save_xs
+
         def cond(carry):
             j, _ = carry
             return (j < num) & (local(j) <= s_stop)
@@ -650,6 +573,37 @@ def build_program(
             return j + 1, xs.at[j].set(interp.evaluate(s_j))
 
         return lax.while_loop(cond, body, (c.save_index, c.save_xs))
+
+    # ---- step-size control at equilibria ----
+
+    def equilibrium_probe(sa, sb, y0, y1, y_error, targs):
+        """The error estimate of a step that did not move the state: that of a perturbation.
+
+        At an equilibrium (x0 = 0 for x'' = −x) every stage is zero, the error estimate is
+        exactly zero and the controller grows the step tenfold per step, to steps far
+        longer than the flow's time scale. The state is still exact there, but its
+        derivatives are not: jacfwd of x'' = −x from 0 over 2π gave [[−16, −3.2],
+        [3.2, −16]] instead of the identity. On such steps the controller is given the
+        error of the same step from a state perturbed by atol/rtol: relative to atol, that
+        is the perturbation's relative error over rtol, so nearby trajectories (and the
+        Jacobian) are kept to the relative tolerance. (A direct evaluation, not a jvp:
+        it works whatever loop kind the Runge–Kutta stages use.)
+        """
+        if not has_error:
+            return y_error
+        still = jnp.all(y_error == 0) & jnp.all(y1 == y0)
+
+        def probe():
+            u = jnp.full_like(y0, tol_a / tol_r / jnp.sqrt(n))
+
+            def error_of(y):
+                state = solver.init(term, sa, sb, y, targs)
+                return error_or_zero(solver.step(term, sa, sb, y, targs, state, True)[1], y)
+
+            nearby_error = error_of(jax.lax.stop_gradient(y0) + u)
+            return jnp.where(still, jax.lax.stop_gradient(jnp.abs(nearby_error)), y_error)
+
+        return lax.cond(eqxi.unvmap_any(still), probe, lambda: y_error)
 
     # ---- one iteration: one solver step ----
 
@@ -667,7 +621,9 @@ def build_program(
             term, sa, sb, c.y, targs, c.solver_state, c.made_jump
         )
         # A NaN error estimate must reject the step, not poison the controller (diffrax #143).
+        y_error = error_or_zero(y_error, y1)
         y_error = jnp.where(jnp.isnan(y_error), jnp.inf, y_error)
+        y_error = equilibrium_probe(sa, sb, c.y, y1, y_error, targs)
         keep, _, tnext, _, controller_state1, _ = controller.adapt_step_size(
             sa, sb, c.y, y1, targs, y_error, error_order, c.controller_state
         )
@@ -688,7 +644,9 @@ def build_program(
             row = []
             for sign in piece.signs:
                 g = gap_along(piece, sign, y_of, c.t_hi, c.t_lo, args_)
-                row.append((g, step_ends(g, sa, sb, c.restart[i])))
+                g_a = sign * piece.gap(abs_time(sa, c.t_hi, c.t_lo), c.y, args_)
+                g_b = sign * piece.gap(abs_time(sb, c.t_hi, c.t_lo), y1, args_)
+                row.append((g, step_ends(g, sa, sb, c.restart[i], g_a, g_b)))
             ends.append(row)
         candidate = jnp.array(False)
         for i, row in enumerate(ends):
@@ -830,7 +788,7 @@ def build_program(
             t_hi=jnp.where(c.landing, landed.t_hi, c.t_hi),
             t_lo=jnp.where(c.landing, landed.t_lo, c.t_lo),
             y=pick(y1, landed.y, c.y, c.y),
-            h=pick(h_next, landed.h, c.h, h_next),
+            h=jax.lax.stop_gradient(pick(h_next, landed.h, c.h, h_next)),
             solver_state=jax.tree.map(
                 lambda a, b: jnp.where(accept_free | c.landing, a, b), solver_state1, c.solver_state
             ),
@@ -922,6 +880,16 @@ def build_program(
         t_event_hi, t_event_lo = _dd_add(t_hi, t_lo, sigma * s_event)
         t_event = t_event_hi + t_event_lo
 
+        # Pieces met together within round-off: a piece the in-step search did not report
+        # (its own crossing lies within the contact floor of this event, e.g. surfaces a
+        # few ulps apart) is hit now too if the state is on it and approaching it. Without
+        # this, the flight after the jump would start "on" it, moving in, and never impact.
+        near = []
+        for i, piece in enumerate(pieces):
+            on, _ = on_surface(piece, t_event, y_event, args_, flight_scale, step_ulps)
+            in_piece, on_boundary = piece.inside(t_event, y_event, args_, state_tol)
+            near.append((on & in_piece & ~c.stick[i], on_boundary))
+
         # Apply the jumps in surface order.
         x = y_event
         count = jnp.array(0)
@@ -936,10 +904,13 @@ def build_program(
                 approaching = (gd < 0) | c.touch[i, k]
                 # `lands` folded in here so that the log is written row-wise only: a
                 # whole-array select of the log every iteration dominated batched runs.
-                apply = lands & c.pending[i, k] & (~applied_any | approaching)
+                # (a piece already pending on one side is not hit again on its other side)
+                hit = c.pending[i, k] | (near[i][0] & (gd < 0) & ~jnp.any(c.pending[i]))
+                apply = lands & hit & (~applied_any | approaching)
                 x_new = piece.jump(t_event, x, args_)
+                on_boundary = jnp.where(c.pending[i, k], c.boundary[i, k], near[i][1])
                 kind = jnp.where(
-                    c.touch[i, k], int(kinds[2]), jnp.where(c.boundary[i, k], int(kinds[1]), int(kinds[0]))
+                    c.touch[i, k], int(kinds[2]), jnp.where(on_boundary, int(kinds[1]), int(kinds[0]))
                 )
                 rows.append((apply, x, x_new, jnp.asarray(i), kind))
                 x_scale = jnp.maximum(flight_scale, jnp.abs(x_new))
@@ -948,7 +919,7 @@ def build_program(
                     floor = piece.floor(t_event, x_new, args_, x_scale) + step_ulps * jnp.abs(
                         jax.lax.stop_gradient(gd)
                     )
-                    moving_in = (gd_new < 0) & (gd_new**2 > 2 * jnp.abs(gdd_new) * floor)
+                    moving_in = (gd_new < 0) & ~is_tangential(gd_new, gdd_new, floor)
                     bad_side = bad_side | (apply & ((g_new < -floor) | ((g_new <= floor) & moving_in)))
                 x = jnp.where(apply, x_new, x)
                 count = count + apply
@@ -1001,7 +972,7 @@ def build_program(
             stick = jnp.where(starts, want, jnp.where(lands & (c.releasing | applied_any), False, c.stick))
             x_moved = x_post
             for i, piece in enumerate(pieces):
-                on_m = project_to_contact(piece, t_event, x_post, args_)
+                on_m = project_onto_contact(piece, t_event, x_post, args_)
                 x_moved = jnp.where((starts & want[i]) | released[i], on_m, x_moved)
             event_row = (
                 starts | jnp.any(released), x_post, x_moved,
@@ -1124,6 +1095,19 @@ def _tree_all_finite(tree):
         if eqx.is_array_like(leaf) and jnp.issubdtype(jnp.result_type(leaf), jnp.inexact)
     ]
     return jnp.all(jnp.array(leaves)) if leaves else jnp.array(True)
+
+
+def _raise_if_bad_start(sol: Solution):
+    """Outside jit and vmap a start inside an impenetrable surface is an input error."""
+    status = sol.status
+    if isinstance(status, jax.core.Tracer) or jnp.ndim(status) != 0:
+        return
+    if int(status) == Status.BAD_START:
+        raise ValueError(
+            f"x0 = {sol.x_final} lies inside an impenetrable surface (Φ < 0 beyond round-off, "
+            "inside its `where`): start on the free side Φ >= 0, or mark the surface "
+            "impenetrable=False if trajectories may live in Φ < 0"
+        )
 
 
 def _with_implicit_tolerances(solver, controller):

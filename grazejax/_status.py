@@ -28,6 +28,10 @@ class Status(enum.IntEnum):
     BAD_JUMP = 6
     """A jump on an `impenetrable` surface left the state inside it (Φ < 0 beyond
     round-off) or on it still moving in: the scene's jump law contradicts its surface."""
+    BAD_START = 7
+    """`x0` lies strictly inside an `impenetrable` surface piece (Φ < 0 beyond round-off,
+    inside its `where`): no trajectory of the scene starts there. Outside `jit`/`vmap`,
+    `simulate` raises a `ValueError` instead."""
 
     @property
     def message(self) -> str:
@@ -42,6 +46,7 @@ _MESSAGES = {
     Status.NONFINITE: "non-finite state (NaN/inf) from the vector field, a jump or input",
     Status.STEP_SIZE_UNDERFLOW: "step size fell below the resolution of t",
     Status.BAD_JUMP: "a jump on an impenetrable surface left the state inside it or moving in",
+    Status.BAD_START: "x0 lies inside an impenetrable surface (Φ < 0 beyond round-off)",
 }
 
 
