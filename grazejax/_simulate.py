@@ -339,10 +339,10 @@ def build_program(
     f = scene.vector_field
     if sigma > 0:
         pieces = tuple(forward_piece(s) for s in scene.surfaces)
-        kinds = (ImpactKind.ALPHA, ImpactKind.BETA, ImpactKind.GAMMA)
+        impact_kinds = (ImpactKind.ALPHA, ImpactKind.BETA, ImpactKind.GAMMA)
     else:
         pieces = tuple(backward_piece(s, f) for s in scene.surfaces)
-        kinds = (ImpactKind.ALPHA_PRIME, ImpactKind.BETA_PRIME, ImpactKind.GAMMA_PRIME)
+        impact_kinds = (ImpactKind.ALPHA_PRIME, ImpactKind.BETA_PRIME, ImpactKind.GAMMA_PRIME)
     m = len(pieces)
     max_signs = max((len(p.signs) for p in pieces), default=1)
     eps = jnp.finfo(dtype).eps
@@ -910,7 +910,7 @@ def build_program(
                 x_new = piece.jump(t_event, x, args_)
                 on_boundary = jnp.where(c.pending[i, k], c.boundary[i, k], near[i][1])
                 kind = jnp.where(
-                    c.touch[i, k], int(kinds[2]), jnp.where(on_boundary, int(kinds[1]), int(kinds[0]))
+                    c.touch[i, k], int(impact_kinds[2]), jnp.where(on_boundary, int(impact_kinds[1]), int(impact_kinds[0]))
                 )
                 rows.append((apply, x, x_new, jnp.asarray(i), kind))
                 x_scale = jnp.maximum(flight_scale, jnp.abs(x_new))
