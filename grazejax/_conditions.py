@@ -25,7 +25,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._linearize import _inverse_jump
+from ._geometry import inverse_jump, project_to_surface
 from ._scene import Scene
 
 STATEMENTS = {
@@ -122,23 +122,11 @@ class ConditionReport(eqx.Module):
 # --------------------------------------------------------------------------------------
 
 
-def _project(phi, t, x, args):
-    """Newton along the gradient onto Φ(t, ·) = 0 (minimum-norm step, 60 iterations)."""
-
-    def step(_, x_):
-        g, grad = jax.value_and_grad(phi, argnums=1)(t, x_, args)
-        norm2 = grad @ grad
-        ok = norm2 > 0
-        return x_ - jnp.where(ok, g / jnp.where(ok, norm2, 1.0), 0.0) * grad
-
-    return jax.lax.fori_loop(0, 60, step, x)
-
-
 @eqx.filter_jit
 def _sample_surface(scene: Scene, i: int, ts, xs, args):
     """Project the box samples onto Φ = 0; also ‖∇Φ‖ at the box samples (C1's scale)."""
     phi = scene.surfaces[i].phi
-    projected = jax.vmap(lambda t, x: _project(phi, t, x, args))(ts, xs)
+    projected = jax.vmap(lambda t, x: project_to_surface(phi, t, x, args))(ts, xs)
     grad_norms = jax.vmap(lambda t, x: jnp.linalg.norm(jax.grad(phi, argnums=1)(t, x, args)))(
         ts, xs
     )
@@ -213,7 +201,7 @@ def _bisect_segments(scene: Scene, i: int, kind: str, ta, xa, tb, xb, args):
         def step(_, carry):
             ta_, xa_, tb_, xb_, va = carry
             tm = 0.5 * (ta_ + tb_)
-            xm = _project(surface.phi, tm, 0.5 * (xa_ + xb_), args)
+            xm = project_to_surface(surface.phi, tm, 0.5 * (xa_ + xb_), args)
             vm = value(tm, xm)
             same = jnp.sign(vm) == jnp.sign(va)
             ta_, xa_, va = (
@@ -227,7 +215,7 @@ def _bisect_segments(scene: Scene, i: int, kind: str, ta, xa, tb, xb, args):
         ta_, xa_, tb_, xb_, _ = jax.lax.fori_loop(0, 50, step, (ta_, xa_, tb_, xb_, va))
         tm, xm = (
             0.5 * (ta_ + tb_),
-            _project(surface.phi, 0.5 * (ta_ + tb_), 0.5 * (xa_ + xb_), args),
+            project_to_surface(surface.phi, 0.5 * (ta_ + tb_), 0.5 * (xa_ + xb_), args),
         )
         inside = (
             jnp.array(True)
@@ -242,7 +230,7 @@ def _bisect_segments(scene: Scene, i: int, kind: str, ta, xa, tb, xb, args):
 @eqx.filter_jit
 def _inverse_at(scene: Scene, i: int, ts, ys, args):
     surface = scene.surfaces[i]
-    return jax.vmap(lambda t, y: _inverse_jump(surface, t, y, args))(ts, ys)
+    return jax.vmap(lambda t, y: inverse_jump(surface, t, y, args))(ts, ys)
 
 
 @eqx.filter_jit

@@ -10,7 +10,12 @@ analysis calls one, to the same floor.
 - `gap_rates`: Φ, Φ̇, Φ̈ along a vector field (in either time direction).
 - `is_tangential`: the tangency test: the depth Φ̇²/(2|Φ̈|) of the parabola through the
   contact is within the floor.
-- `newton_inverse`: J⁻¹ by Newton's method with an implicit-function JVP, NaN on failure.
+- `newton_inverse`, `inverse_jump`: J⁻¹ by Newton's method with an implicit-function JVP
+  (NaN on failure), or the surface's own `inverse_jump`; `inverse_jump` also says whether it
+  succeeded.
+- `project_to_surface`: a point moved onto Φ = 0 by minimum-norm Newton steps.
+- `on_surface`, `on_piece`: is a given point on Φ = 0 (to within the floor, or a stated
+  multiple of it), on the piece, on its boundary, and is it tangential there?
 - `Piece`, `forward_piece`, `backward_piece`: a surface as the loop sees it (Γ_i forward,
   the image Γ̃_i = J_i(Γ_i) with J_i⁻¹ backward).
 - `contact_frame`, `project_to_contact`: the sliding geometry on M = {Φ = 0, Φ̇ = 0}.
@@ -137,6 +142,73 @@ def newton_inverse(surface: Surface) -> Callable:
         return z, dz
 
     return inverse
+
+
+def inverse_jump(surface: Surface, t, y, args):
+    """`(J⁻¹(y), ok)`: the surface's `inverse_jump`, else `newton_inverse`; y where not ok."""
+    inverse = surface.inverse_jump or newton_inverse(surface)
+    z = inverse(t, y, args)
+    ok = jnp.all(jnp.isfinite(z))
+    return jnp.where(ok, z, y), ok
+
+
+def analysis_scale(x):
+    """|x| per coordinate for the floor of a *given* point: 1 + ‖x‖∞ in every coordinate.
+
+    The loop knows the magnitudes met in its flight; an analysis has one point only, and
+    the paper's boundaries and grazing points often lie at x = 0, where |x_k| would give a
+    zero floor.
+    """
+    return jnp.full_like(x, 1.0 + jnp.max(jnp.abs(x)))
+
+
+def on_surface(gap, t, x, args, slack=1.0):
+    """|Φ(t, x)| within `slack` floors (`gap_floor` at `analysis_scale`): on Φ = 0."""
+    return jnp.abs(gap(t, x, args)) <= slack * gap_floor(gap, t, x, args, analysis_scale(x))
+
+
+def project_to_surface(gap, t, x, args, iterations: int = 60):
+    """x moved onto Φ(t, ·) = 0 by minimum-norm Newton steps along ∇Φ (none where ∇Φ = 0)."""
+
+    def step(_, x_):
+        g, grad = jax.value_and_grad(gap, argnums=1)(t, x_, args)
+        norm2 = grad @ grad
+        return x_ - safe_divide(g, norm2, norm2 > 0) * grad
+
+    return lax.fori_loop(0, iterations, step, x)
+
+
+# A given point is on ∂Γ if `where` changes within this relative distance of it.
+# closed_piece's own default (1e3 ulps of |x|) vanishes at x = 0, where the paper's
+# boundaries lie.
+BOUNDARY_RTOL = 1e-10
+
+
+def boundary_tol(x):
+    return jnp.full_like(x, BOUNDARY_RTOL) * (1.0 + jnp.max(jnp.abs(x)))
+
+
+def on_piece(gap, where, t, x, args, fx, rtol):
+    """A given point against {gap = 0} ∩ piece, with the simulator's floor.
+
+    Returns `(on, on_boundary, rate, normal, tangential, defined)`: on the closed piece,
+    on its boundary, the approach rate ∂Φ/∂t + ∇Φ·f, ∇Φ, tangency (|rate| within `rtol`
+    of its terms' size plus the floor), and whether Φ and its derivatives are finite.
+    `where(x) -> (inside, on_boundary)` or None (the whole zero set).
+    """
+    g = gap(t, x, args)
+    g_t, grad = jax.jacfwd(gap, argnums=(0, 1))(t, x, args)
+    rate = g_t + grad @ fx
+    floor = gap_floor(gap, t, x, args, analysis_scale(x))
+    on = jnp.abs(g) <= floor
+    if where is None:
+        inside, boundary = jnp.array(True), jnp.array(False)
+    else:
+        inside, boundary = where(x)
+    size = jnp.abs(grad) @ jnp.abs(fx) + jnp.abs(g_t)
+    tangential = jnp.abs(rate) <= rtol * size + floor
+    leaves = jnp.stack([jnp.all(jnp.isfinite(v)) for v in (g, g_t, grad)])
+    return on & inside, boundary & on & inside, rate, grad, tangential, jnp.all(leaves)
 
 
 def forward_piece(surface: Surface) -> Piece:

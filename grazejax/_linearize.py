@@ -50,11 +50,14 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
-from ._geometry import closed_piece
+from ._flow import flight_kwargs, free_flow
+from ._geometry import boundary_tol, closed_piece, inverse_jump, on_piece
+from ._roots import safe_divide
 from ._scene import Scene, Surface
 from ._simulate import simulate
 from ._solution import Solution
 from ._status import ImpactKind, Status
+from ._validate import is_concrete
 
 # --------------------------------------------------------------------------------------
 # Status
@@ -348,10 +351,6 @@ class A2Diagnostic(eqx.Module):
 # --------------------------------------------------------------------------------------
 
 
-def _is_concrete(*trees) -> bool:
-    return not any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves(trees))
-
-
 def _float_array(x):
     # An explicit dtype: Python scalars would otherwise give weakly-typed arrays, and a
     # weak and a strong float64 are different signatures to jit (a silent recompile).
@@ -375,46 +374,8 @@ def _args_arrays(args):
     )
 
 
-def _safe_divide(num, den, ok):
-    # The double-where: the unselected branch never divides by zero, so its tangent is
-    # finite too (a single where would still propagate NaN tangents).
-    return jnp.where(ok, num / jnp.where(ok, den, 1.0), 0.0)
-
-
 def _identity_jump(t, x, args):
     return x
-
-
-# Options of `simulate` that the helpers below set themselves.
-_OWN = ("max_impacts", "direction", "saveat", "throw")
-
-
-def _flight_kwargs(kw):
-    return {k: v for k, v in kw.items() if k not in _OWN}
-
-
-class _Rescaled(eqx.Module):
-    """x' = f(t, x) on [t_a, t_b] as dx/ds = (t_b − t_a) f(t_a + (t_b − t_a) s, x), s ∈ [0, 1].
-
-    Why: a flow between two *traced* times (τ from an event, back to θ) has a direction
-    unknown at trace time; in s it always runs forward, for either sign of t_b − t_a, and
-    for t_b = t_a it is the identity. The times enter as args, so `jacfwd` differentiates
-    through them.
-    """
-
-    vector_field: Any = eqx.field(static=True)
-
-    def __call__(self, s, y, params):
-        t_a, t_b, args = params
-        span = t_b - t_a
-        return span * self.vector_field(t_a + span * s, y, args)
-
-
-def _free_flow(vector_field, x, t_a, t_b, args, kw):
-    """x(t_b) for x' = f from (t_a, x), without impacts (either time direction)."""
-    scene = Scene(_Rescaled(vector_field), [])
-    sol = simulate(scene, x, 0.0, 1.0, (t_a, t_b, args), **_flight_kwargs(kw))
-    return sol.x_final, sol.status
 
 
 def _simulation_ok(status):
@@ -429,7 +390,7 @@ def _tree_finite(tree):
 def _direction(t0, t1, kw):
     if kw.get("direction") is not None:
         return int(kw["direction"])
-    if not _is_concrete(t0, t1):
+    if not is_concrete(t0, t1):
         raise ValueError(
             "t0/t1 are traced (inside jit/vmap): pass direction=+1 or -1 (as for simulate)"
         )
@@ -450,7 +411,7 @@ def _check_surface_index(scene, surface_index):
 
 def _raise_if_undefined(result, scene, surface_index, t, x, args, what):
     """Outside jit, an undefined point is a usage error: say exactly what is undefined."""
-    if not _is_concrete(result.status, t, x, args):
+    if not is_concrete(result.status, t, x, args):
         return
     if int(result.status) != DerivativeStatus.UNDEFINED:
         return
@@ -639,7 +600,7 @@ def _saltation_core(scene: Scene, i: int, t, x, args) -> Saltation:
     tangential = jnp.abs(rate) <= floor
     ok = defined & ~tangential
     n = x.shape[0]
-    S = DJ + jnp.outer(f_plus - DJ @ f_minus - J_t, grad) * _safe_divide(1.0, rate, ok)
+    S = DJ + jnp.outer(f_plus - DJ @ f_minus - J_t, grad) * safe_divide(1.0, rate, ok)
     eye = jnp.eye(n, dtype=x.dtype)
     S = jnp.where(ok, S, jnp.where(defined, eye, jnp.nan))
     status = jnp.where(
@@ -685,82 +646,27 @@ def saltation_matrix(scene: Scene, surface_index: int, t, x_pre, args=None) -> S
 # --------------------------------------------------------------------------------------
 
 
-def _inverse_jump(surface: Surface, t, y, args):
-    """J⁻¹(y): the given `inverse_jump`, or Newton from 2y − J(y); returns (value, ok).
-
-    A plain fixed-count Newton loop rather than `optx.root_find`: where DJ is singular (the
-    paper's grazing points, or a non-invertible J) lineax raises at run time, while here the
-    step is simply non-finite and the point is reported as not on Γ̃.
-    """
-    if surface.inverse_jump is not None:
-        z = surface.inverse_jump(t, y, args)
-        return z, jnp.all(jnp.isfinite(z))
-
-    def residual(z):
-        return surface.jump(t, z, args) - y
-
-    scale = 1.0 + jnp.max(jnp.abs(y))
-
-    def step(_, z):
-        r = residual(z)
-        done = jnp.max(jnp.abs(r)) <= 1e-13 * scale
-        DJ = jax.jacfwd(residual)(z)
-        dz = jnp.linalg.solve(jnp.where(done, jnp.eye(z.shape[0], dtype=z.dtype), DJ), r)
-        dz = jnp.where(done, 0.0, dz)
-        return jnp.where(jnp.all(jnp.isfinite(dz)), z - dz, z + jnp.nan)
-
-    z = jax.lax.fori_loop(0, 40, step, 2 * y - surface.jump(t, y, args))
-    ok = jnp.all(jnp.isfinite(z)) & (jnp.max(jnp.abs(residual(z))) <= 1e-11 * scale)
-    return jnp.where(ok, z, y), ok
-
-
-def _on_piece(gap, where, t, x, args, fx, rtol):
-    """Membership of {gap = 0} ∩ piece, boundary, rate, normal, tangency, definedness."""
-    eps = jnp.finfo(x.dtype).eps
-    x_scale = jnp.max(jnp.abs(x)) + 1.0
-    g = gap(t, x, args)
-    g_t, grad = jax.jacfwd(gap, argnums=(0, 1))(t, x, args)
-    rate = g_t + grad @ fx
-    # The contact floor of simulate: 64 ulps of the gap's natural scale.
-    floor = 64 * eps * (jnp.sum(jnp.abs(grad)) * x_scale + jnp.abs(g_t * t))
-    on = jnp.abs(g) <= floor
-    if where is None:
-        inside, boundary = jnp.array(True), jnp.array(False)
-    else:
-        inside, boundary = where(x)
-    size = jnp.abs(grad) @ jnp.abs(fx) + jnp.abs(g_t)
-    tangential = jnp.abs(rate) <= rtol * size + floor
-    defined = _tree_finite((g, g_t, grad))
-    return on & inside, boundary & on & inside, rate, grad, tangential, defined
-
-
-def _boundary_tol(x):
-    # A given point is on ∂Γ if `where` changes within this distance of it. closed_piece's
-    # own default (1e3 ulps of |x|) vanishes at x = 0, where the paper's boundaries lie.
-    return jnp.full_like(x, 1e-10) * (1.0 + jnp.max(jnp.abs(x)))
-
-
 def _classify_core(scene: Scene, i: int, t, x, args, rtol) -> PointType:
     surface = scene.surfaces[i]
     fx = scene.vector_field(t, x, args)
     where_x = None
     if surface.where is not None:
-        where_x = lambda z: closed_piece(surface.where, t, z, args, _boundary_tol)  # noqa: E731
-    on_s, bd_s, rate_s, grad_s, tan_s, def_s = _on_piece(surface.phi, where_x, t, x, args, fx, rtol)
+        where_x = lambda z: closed_piece(surface.where, t, z, args, boundary_tol)  # noqa: E731
+    on_s, bd_s, rate_s, grad_s, tan_s, def_s = on_piece(surface.phi, where_x, t, x, args, fx, rtol)
 
     # The image Γ̃ = J(Γ): y ∈ Γ̃ iff z = J⁻¹(y) ∈ Γ; Φ̃ = Φ ∘ J⁻¹. Where J⁻¹ cannot be
     # solved (J not invertible: the paper's (C2) fails) the point is not put on Γ̃.
-    z, inv_ok = _inverse_jump(surface, t, x, args)
+    z, inv_ok = inverse_jump(surface, t, x, args)
     z = jnp.where(inv_ok, z, x)
 
     def image_gap(t_, y_, args_):
-        zz, _ = _inverse_jump(surface, t_, y_, args_)
+        zz, _ = inverse_jump(surface, t_, y_, args_)
         return surface.phi(t_, zz, args_)
 
     where_img = None
     if surface.where is not None:
-        where_img = lambda y: closed_piece(surface.where, t, z, args, _boundary_tol)  # noqa: E731
-    on_i, bd_i, rate_i, grad_i, tan_i, def_i = _on_piece(image_gap, where_img, t, x, args, fx, rtol)
+        where_img = lambda y: closed_piece(surface.where, t, z, args, boundary_tol)  # noqa: E731
+    on_i, bd_i, rate_i, grad_i, tan_i, def_i = on_piece(image_gap, where_img, t, x, args, fx, rtol)
     on_i = on_i & inv_ok & def_i & ~on_s
 
     on_boundary = jnp.where(on_s, bd_s, bd_i & on_i)
@@ -830,11 +736,11 @@ def _meet(scene: Scene, i: int, t, x, args, lookback: float, horizon, kw):
         # Γ_i), and a run never impacts at its start time, so a point *on* Γ_i needs a
         # start upstream of it to have its τ = t found.
         t_start = t - lookback
-        y, flow_status = _free_flow(scene.vector_field, x, t, t_start, args, kw)
+        y, flow_status = free_flow(scene.vector_field, x, t, t_start, args, kw)
     else:
         t_start, y, flow_status = t, x, jnp.array(int(Status.SUCCESS))
     sol = simulate(
-        probe, y, t_start, t + horizon, args, max_impacts=1, direction=1, **_flight_kwargs(kw)
+        probe, y, t_start, t + horizon, args, max_impacts=1, direction=1, **flight_kwargs(kw)
     )
     met = sol.num_impacts > 0
     # Double where: where nothing was met the log rows are NaN; never let them into the
@@ -880,7 +786,7 @@ def _start_checks(scene, i, t, x, args):
     where_x = None
     if surface.where is not None:
         where_x = lambda z: closed_piece(surface.where, t, z, args)  # noqa: E731
-    on, _, _, _, tangential, defined = _on_piece(surface.phi, where_x, t, x, args, fx, 1e-10)
+    on, _, _, _, tangential, defined = on_piece(surface.phi, where_x, t, x, args, fx, 1e-10)
     return on & tangential, ~(defined & _tree_finite(fx))
 
 
@@ -957,7 +863,7 @@ def _w_value(scene, i, t, x, args, lookback, horizon, kw):
     tau, x_meet, kind, met, ok_run, _ = _meet(scene, i, t, x, args, lookback, horizon, kw)
     x_post = surface.jump(tau, x_meet, args)
     # ψ: from (τ, J(ξ(τ))) back to θ = t, without impacts (eq. W-map).
-    back, back_status = _free_flow(scene.vector_field, x_post, tau, t, args, kw)
+    back, back_status = free_flow(scene.vector_field, x_post, tau, t, args, kw)
     value = jnp.where(met, back - x, jnp.zeros_like(x))
     ok_run = ok_run & (_simulation_ok(back_status) | ~met)
     return value, (tau, x_meet, kind, met, ok_run)
@@ -1007,20 +913,20 @@ def _closed_form_impl(scene, i, t, x, tau, args, kw):
     f = scene.vector_field
 
     def to_tau(x_):
-        x1, status = _free_flow(f, x_, t, tau, args, kw)
+        x1, status = free_flow(f, x_, t, tau, args, kw)
         return x1, (x1, status)
 
     X, (xi, status_a) = jax.jacfwd(to_tau, has_aux=True)(x)
     salt = _saltation_core(scene, i, tau, xi, args)
 
     def back(y_):
-        y1, status = _free_flow(f, y_, tau, t, args, kw)
+        y1, status = free_flow(f, y_, tau, t, args, kw)
         return y1, (y1, status)
 
     Y, (_, status_b) = jax.jacfwd(back, has_aux=True)(salt.x_post)
     _, grad = jax.jacfwd(surface.phi, argnums=(0, 1))(tau, xi, args)
     ok = salt.status == int(DerivativeStatus.OK)
-    grad_tau = -_safe_divide(X.T @ grad, salt.approach_rate, ok)
+    grad_tau = -safe_divide(X.T @ grad, salt.approach_rate, ok)
     n = x.shape[0]
     w_jac = jnp.where(
         ok, Y @ salt.matrix @ X - jnp.eye(n, dtype=x.dtype), jnp.zeros((n, n), x.dtype)
@@ -1115,7 +1021,7 @@ def _variational_impl(scene, x0, t0, t1, args, kw):
     def segment(carry, j):
         U, trace = carry
         z0 = jnp.concatenate([x_starts[j], U.reshape(-1), jnp.zeros((1,), x0.dtype)])
-        z1, status = _free_flow(augmented, z0, starts[j], ends[j], args, kw)
+        z1, status = free_flow(augmented, z0, starts[j], ends[j], args, kw)
         U1 = z1[n : n + n * n].reshape(n, n)
         trace = trace + z1[-1]
         apply = j < max_impacts
@@ -1356,7 +1262,7 @@ def one_sided_jacobians(
 
 @eqx.filter_jit
 def _upstream(scene, x, t, window, args, kw):
-    return _free_flow(scene.vector_field, x, t, t - window, args, kw)
+    return free_flow(scene.vector_field, x, t, t - window, args, kw)
 
 
 def a2_diagnostic(
@@ -1421,7 +1327,7 @@ def a2_diagnostic(
     )
     # The time-synchronised flow Jacobian of the *full* system across the impact: from the
     # neighbour's upstream point at t − h to t + h (flow_jacobian's cached program).
-    flow_kw = dict(_flight_kwargs(kw), direction=1)
+    flow_kw = dict(flight_kwargs(kw), direction=1)
     t_start, t_end = t - window, t + window
     flow_jac = []
     for x_ in xs:

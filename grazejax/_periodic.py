@@ -47,10 +47,13 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, Bool, Complex, Float, Int
 
+from ._flow import short_free_flow
+from ._geometry import FLOOR_ULPS, gap_rates, on_surface
 from ._linearize import saltation_matrix
 from ._scene import Scene
 from ._simulate import simulate
 from ._status import Status
+from ._validate import is_concrete
 
 # --------------------------------------------------------------------------------------
 # Status
@@ -258,29 +261,8 @@ class _PeriodMap(eqx.Module):
         sol = self.run(x0, t0, t0 + 2 * jnp.abs(T), args, self.end_impacts)
         ok = sol.status == Status.MAX_IMPACTS
         theta = sol.t_final
-        x_end = _free_flow(self.scene.vector_field, theta, sol.x_final, t0 + T - theta, args)
+        x_end = short_free_flow(self.scene.vector_field, theta, sol.x_final, t0 + T - theta, args)
         return x_end, ok, sol
-
-
-def _free_flow(vector_field, t, x, delta, args, substeps: int = 8):
-    """x(t + δ) of x' = f(t, x) from (t, x), ignoring surfaces, by classical RK4.
-
-    Used only to move a post-impact state by the small time left between the closing
-    impact and t0 + T (δ = 0 at the solution, either sign before). Fixed steps keep it
-    smooth in δ and cheap; the error, O(δ⁵/substeps⁴), vanishes with δ. An exact flow
-    matters when the phase condition leaves x0 off the surface (δ ≠ 0 at the solution).
-    """
-    h = delta / substeps
-
-    def step(i, y):
-        s = t + i * h
-        k1 = vector_field(s, y, args)
-        k2 = vector_field(s + h / 2, y + h / 2 * k1, args)
-        k3 = vector_field(s + h / 2, y + h / 2 * k2, args)
-        k4 = vector_field(s + h, y + h * k3, args)
-        return y + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-
-    return lax.fori_loop(0, substeps, step, x)
 
 
 # --------------------------------------------------------------------------------------
@@ -482,21 +464,14 @@ def _assess(pmap, fixed_period, n, j, fix, f_guess, x_guess, x0, period, t0, arg
 # --------------------------------------------------------------------------------------
 
 
-def _is_concrete(*trees) -> bool:
-    return not any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves(trees))
+# A guess is "on" a surface to 1e-9 relative: about 7e4 contact floors.
+_GUESS_SLACK = 1e-9 / (FLOOR_ULPS * float(np.finfo(np.float64).eps))
 
 
-def _on_surfaces(scene: Scene, t0, x0, args, rtol=1e-9) -> list[int]:
-    """Indices of the surfaces whose zero set contains x0 (to within round-off)."""
-    out = []
-    x = jnp.asarray(x0, float)
-    scale = 1.0 + float(jnp.max(jnp.abs(x)))
-    for i, surface in enumerate(scene.surfaces):
-        g = float(surface.phi(jnp.asarray(t0, float), x, args))
-        grad = np.asarray(jax.grad(lambda y, s=surface: s.phi(jnp.asarray(t0, float), y, args))(x))
-        if abs(g) <= rtol * scale * max(1.0, float(np.sum(np.abs(grad)))):
-            out.append(i)
-    return out
+def _on_surfaces(scene: Scene, t0, x0, args) -> list[int]:
+    """Indices of the surfaces whose zero set contains the guess x0 (see `_GUESS_SLACK`)."""
+    t, x = jnp.asarray(t0, float), jnp.asarray(x0, float)
+    return [i for i, s in enumerate(scene.surfaces) if bool(on_surface(s.phi, t, x, args, _GUESS_SLACK))]
 
 
 @eqx.filter_jit
@@ -605,9 +580,9 @@ def find_periodic_orbit(
         raise ValueError(f"max_steps must be a positive integer, got {max_steps!r}")
     if num_impacts is not None and (not isinstance(num_impacts, (int, np.integer)) or num_impacts < 0):
         raise ValueError(f"num_impacts must be a non-negative integer, got {num_impacts!r}")
-    if _is_concrete(period) and not (np.isfinite(float(period)) and float(period) > 0):
+    if is_concrete(period) and not (np.isfinite(float(period)) and float(period) > 0):
         raise ValueError(f"period must be a positive finite number, got {float(period)}")
-    if _is_concrete(x_guess) and not np.all(np.isfinite(np.asarray(x_guess))):
+    if is_concrete(x_guess) and not np.all(np.isfinite(np.asarray(x_guess))):
         raise ValueError(f"x0 contains NaN or inf: {np.asarray(x_guess)}")
 
     pmap = _PeriodMap(
@@ -615,7 +590,7 @@ def find_periodic_orbit(
         max_impacts=int(max_impacts), max_solver_steps=int(max_solver_steps),
     )
     if start_at_impact is None or (start_at_impact and num_impacts is None):
-        if not _is_concrete(x_guess, period, args, t0):
+        if not is_concrete(x_guess, period, args, t0):
             raise ValueError(
                 "inside jit/vmap/jacfwd (traced x0, period, args or t0) pass "
                 "start_at_impact (and num_impacts when True): they select the compiled "
@@ -729,7 +704,7 @@ def _flights_to_impact(pmap_impact: _PeriodMap, starts, t_starts, durations, nud
         def pre(y):
             # Leave the surface along the free flow first (a restart exactly on a surface
             # with an inward velocity can re-trigger in simulate: see docs/periodic.md).
-            y1 = _free_flow(pmap_impact.scene.vector_field, t, y, tau, args)
+            y1 = short_free_flow(pmap_impact.scene.vector_field, t, y, tau, args)
             sol = pmap_impact.run(y1, t + tau, t + 2 * d, args, 1)
             out = (sol.impact_pre[0], sol.impact_times[0])
             return out, out
@@ -744,7 +719,7 @@ def _flights_to_impact(pmap_impact: _PeriodMap, starts, t_starts, durations, nud
 @eqx.filter_jit
 def _nudge_jacobian(vector_field, t, x, tau, args):
     """x(t + τ) by the free flow (RK4) and its Jacobian."""
-    return jax.jacfwd(lambda y: _free_flow(vector_field, t, y, tau, args), has_aux=False)(x)
+    return jax.jacfwd(lambda y: short_free_flow(vector_field, t, y, tau, args), has_aux=False)(x)
 
 
 def _flight_factor(pmap_time: _PeriodMap, x, t, duration, args, tau=0.0):
@@ -752,7 +727,7 @@ def _flight_factor(pmap_time: _PeriodMap, x, t, duration, args, tau=0.0):
     if float(tau) == 0.0:
         return _linearize(pmap_time, x, t, duration, args)[1]
     f = pmap_time.scene.vector_field
-    x1 = _free_flow(f, t, jnp.asarray(x), tau, args)
+    x1 = short_free_flow(f, t, jnp.asarray(x), tau, args)
     nudge = _nudge_jacobian(f, t, jnp.asarray(x), tau, args)
     return _linearize(pmap_time, x1, t + tau, duration - tau, args)[1] @ nudge
 
@@ -960,24 +935,12 @@ class Contacts(eqx.Module):
         return np.abs(np.asarray(self.depth)) <= tol
 
 
-def _gap_derivatives(scene: Scene, i: int, t, x, args):
-    """Φ_i, dΦ_i/dt, d²Φ_i/dt² along the flow at (t, x)."""
-    surface, f = scene.surfaces[i], scene.vector_field
-
-    def along(t_, x_):
-        return jax.jvp(lambda a, b: surface.phi(a, b, args), (t_, x_),
-                       (jnp.ones_like(t_), f(t_, x_, args)))
-
-    (g, gd), (_, gdd) = jax.jvp(along, (t, x), (jnp.ones_like(t), f(t, x, args)))
-    return g, gd, gdd
-
-
 @eqx.filter_jit
 def _gap_table(scene: Scene, ts, xs, args):
     """Φ_i, dΦ_i/dt, d²Φ_i/dt² and `where_i` at many (t, x), for every surface."""
     rows = []
     for i, surface in enumerate(scene.surfaces):
-        g, gd, gdd = jax.vmap(lambda t, x, i=i: _gap_derivatives(scene, i, t, x, args))(ts, xs)
+        g, gd, gdd = jax.vmap(lambda t, x, i=i: gap_rates(scene.surfaces[i].phi, scene.vector_field, t, x, args))(ts, xs)
         if surface.where is None:
             inside = jnp.ones_like(g, dtype=bool)
         else:
@@ -1007,7 +970,7 @@ def _refine_minimum(pmap, scene, i, x0, t0, t_guess, args, lo, hi):
     """One Newton step on dΦ/dt = 0 from t_guess, with the exact state there."""
     t_guess = float(np.clip(t_guess, lo, hi))
     x = _state_at(pmap, x0, t0, t_guess, args)
-    g, gd, gdd = (float(v) for v in _gap_derivatives(scene, i, jnp.asarray(t_guess), jnp.asarray(x), args))
+    g, gd, gdd = (float(v) for v in gap_rates(scene.surfaces[i].phi, scene.vector_field, jnp.asarray(t_guess), jnp.asarray(x), args))
     if gdd > 0:
         dt = float(np.clip(-gd / gdd, lo - t_guess, hi - t_guess))
         t_min = t_guess + dt
@@ -1037,7 +1000,7 @@ def orbit_contacts(scene: Scene, orbit: Orbit, args=None, *, num_samples: int = 
     for m in range(k):
         i = int(orbit.impact_surface[m])
         pre = np.asarray(orbit.impact_pre[m], float)
-        g, gd, gdd = (float(v) for v in _gap_derivatives(scene, i, jnp.asarray(times[m]), jnp.asarray(pre), args))
+        g, gd, gdd = (float(v) for v in gap_rates(scene.surfaces[i].phi, scene.vector_field, jnp.asarray(times[m]), jnp.asarray(pre), args))
         depth = -gd * gd / (2 * gdd) if gdd > 0 else -math.inf
         rows.append((times[m], pre, i, True, depth, gd, gdd))
     if scene.surfaces:
@@ -1142,8 +1105,8 @@ def _contact_depths(pmap, scene, start, t_start, t_end, contacts, args, window):
         hits = [m for m in range(k) if surfaces[m] == i and abs(times[m] - t_c) <= w]
         if hits:
             m = min(hits, key=lambda m_: abs(times[m_] - t_c))
-            g, gd, gdd = (float(v) for v in _gap_derivatives(
-                scene, i, jnp.asarray(times[m]), sol.impact_pre[m], args))
+            g, gd, gdd = (float(v) for v in gap_rates(
+                scene.surfaces[i].phi, scene.vector_field, jnp.asarray(times[m]), sol.impact_pre[m], args))
             depths.append(-gd * gd / (2 * gdd) if gdd > 0 else -math.inf)
             impacted.append(True)
         else:

@@ -22,8 +22,9 @@ class Checked(NamedTuple):
     ts: jax.Array | None
 
 
-def _is_concrete(x) -> bool:
-    return not isinstance(x, jax.core.Tracer)
+def is_concrete(*trees) -> bool:
+    """No leaf is a tracer: the values can be checked in Python (outside jit/vmap)."""
+    return not any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves(trees))
 
 
 def validate_inputs(
@@ -51,7 +52,7 @@ def validate_inputs(
     dtype = jnp.float32 if (x0_dtype == jnp.float32 and allow_float32) else jnp.float64
     if x0_dtype is not None and jnp.issubdtype(x0_dtype, jnp.complexfloating):
         raise TypeError("x0 must be real, got a complex array")
-    concrete_x0 = _is_concrete(x0)
+    concrete_x0 = is_concrete(x0)
     if concrete_x0 and not np.all(np.isfinite(np.asarray(x0, dtype=np.float64))):
         raise ValueError(f"x0 contains NaN or inf: {np.asarray(x0)}")
     x0 = jnp.asarray(x0, dtype=dtype)
@@ -64,12 +65,12 @@ def validate_inputs(
         raise ValueError("x0 is empty: the state needs at least one coordinate")
     if args is not None:
         for leaf in jax.tree.leaves(args):
-            if eqx.is_array_like(leaf) and _is_concrete(leaf):
+            if eqx.is_array_like(leaf) and is_concrete(leaf):
                 value = np.asarray(leaf)
                 if np.issubdtype(value.dtype, np.inexact) and not np.all(np.isfinite(value)):
                     raise ValueError(f"args contains NaN or inf: {value}")
 
-    concrete_times = _is_concrete(t0) and _is_concrete(t1)
+    concrete_times = is_concrete(t0) and is_concrete(t1)
     if concrete_times:
         a, b = np.asarray(t0, dtype=np.float64), np.asarray(t1, dtype=np.float64)
     t0 = jnp.asarray(t0, dtype=dtype)
@@ -102,7 +103,7 @@ def validate_inputs(
         ts = jnp.asarray(saveat, dtype=dtype)
         if ts.ndim != 1 or ts.shape[0] == 0:
             raise ValueError(f"saveat must be a non-empty 1-D array of times, got shape {ts.shape}")
-        if _is_concrete(saveat) and concrete_times:
+        if is_concrete(saveat) and concrete_times:
             values = np.asarray(saveat, dtype=np.float64) * sigma
             if np.any(np.diff(values) < 0):
                 raise ValueError("saveat times must be monotone in the direction of integration")

@@ -39,6 +39,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._geometry import project_to_surface
 from ._scene import Scene
 from ._status import ImpactKind
 
@@ -180,10 +181,7 @@ def surface_samples(
         return []
 
     def newton(x):
-        for _ in range(2):
-            g, grad = jax.value_and_grad(phi)(x)
-            x = x - g * grad / jnp.maximum(jnp.sum(grad * grad), 1e-300)
-        return x
+        return project_to_surface(surface.phi, t, x, args, iterations=2)
 
     out = []
     for line in lines:
