@@ -50,13 +50,13 @@ def runs() -> dict[str, np.ndarray]:
     _flat("oscillator", gj.simulate(osc, jnp.array([0.0, 0.0]), 0.0, 30.0, osc_args,
                                     solver=diffrax.Dopri8(), rtol=1e-10, atol=1e-10,
                                     max_impacts=100), out)
-    _flat("ex1dof", gj.simulate(ex.ex1dof(), jnp.array([1.7, 0.0]), 0.0, 20.0,
+    _flat("ex1dof", gj.simulate(ex.ex1dof(), jnp.array([0.5, 1.2]), 0.0, 20.0,
                                 ex.ex1dof_args(0.2), max_impacts=50), out)
     _flat("orbex2", gj.simulate(ex.orbex2(), jnp.array([0.8, 1.2]), 0.0, 10.0,
                                 ex.orbex2_args(), max_impacts=50), out)
     table = ex.vibrating_table()
-    table_args = {"g": 9.81, "e": 0.3, "A": 0.01, "omega": 2 * np.pi * 8.0}
-    _flat("table_stick", gj.simulate(table, jnp.array([0.05, 0.0]), 0.0, 1.0, table_args,
+    table_args = {"g": 9.81, "e": 0.5, "A": 0.05, "omega": 10.0}
+    _flat("table_stick", gj.simulate(table, jnp.array([0.3, 0.0]), 0.0, 3.0, table_args,
                                      zeno="stick", max_impacts=200), out)
     lanes = jnp.stack([jnp.linspace(0.2, 2.0, 5), jnp.zeros(5)], axis=1)
     batch = jax.vmap(lambda x0: gj.simulate(ball, x0, 0.0, 3.0, _ball_args(0.7), direction=1,
