@@ -31,10 +31,11 @@ from ._roots import bracketed_root, safe_divide
 class StepEnds(NamedTuple):
     """Guarded gap values and slopes of one surface at the two ends of a step."""
 
-    g_start: jax.Array  # G(sa): g(sa), or ġ(sa) on a restart step (see `guarded`)
+    g_start: jax.Array  # G(s_start): g(sa), or ġ(sa) on a restart step (see `guarded`)
     g_end: jax.Array  # G(sb), same sign as g(sb)
-    slope_start: jax.Array  # ġ(sa)
+    slope_start: jax.Array  # ġ(sa) (not below 0 at a tangential lift-off)
     slope_end: jax.Array  # ġ(sb)
+    s_start: jax.Array  # where g_start was taken: sa, or just after it (tangential lift-off)
 
 
 def guarded(g, sa, restart):
@@ -65,11 +66,28 @@ def step_ends(g, sa, sb, restart, g_a, g_b) -> StepEnds:
     g < 0 — and no later step would ever see the sign change (a ball falling through an
     impenetrable floor). With the states' own values, consecutive steps share their end
     values, so every sign change of the sequence of states is seen by exactly one step.
+
+    A restart step is judged by G(sa) = ġ(sa), except for a *tangential lift-off*: after a
+    jump that leaves ġ = 0 to round-off (restitution 0 on a moving table), G(sa) reads 0 or
+    −1 ulp although the flight rises (ġ > 0 just after sa) — and a return through Φ = 0 within the same
+    step was missed: the ball fell through the table with SUCCESS (found by the
+    chatter–stick–release campaign at e = 0, Aω² = 1.25 g, ω = 8). Such a step is judged
+    at s_lift = sa + 2⁻²⁰(sb − sa) instead, where G ≈ ġ + g̈·(s − sa)/2 has left the
+    round-off, and the crossing is searched in [s_lift, sb]: the flight does not re-trigger
+    at sa, and a hop shorter than 2⁻²⁰ of the step is a touch (its depth is below the floor).
     """
     slope_a = jax.jvp(g, (sa,), (jnp.ones_like(sa),))[1]
     slope_b = jax.jvp(g, (sb,), (jnp.ones_like(sb),))[1]
-    g_start = jnp.where(restart, slope_a, g_a)
-    return StepEnds(g_start, g_b, slope_a, slope_b)
+    s_lift = sa + (sb - sa) * 2.0**-20
+    g_lift = guarded(g, sa, restart)(s_lift)
+    rising = jax.jvp(g, (s_lift,), (jnp.ones_like(s_lift),))[1] > 0
+    lifting = restart & (slope_a <= 0) & rising & (g_lift > 0) & (s_lift > sa)
+    g_start = jnp.where(restart, jnp.where(lifting, g_lift, slope_a), g_a)
+    # A lift-off rises from sa: no interior minimum of g is looked for from there (a
+    # round-off slope of −1 ulp would otherwise make a "dip" of depth 0 at sa, a false γ
+    # contact at every release).
+    slope_start = jnp.where(lifting, jnp.maximum(slope_a, 0.0), slope_a)
+    return StepEnds(g_start, g_b, slope_start, slope_b, jnp.where(lifting, s_lift, sa))
 
 
 def is_candidate(ends: StepEnds):
@@ -110,7 +128,7 @@ def locate(g, sa, sb, ends: StepEnds, restart, floor) -> Contact:
     G_upper = jnp.where(dip, jnp.minimum(G(upper), 0.0), ends.g_end)
     G_lower = jnp.where(ends.g_start > 0, ends.g_start, 1.0)
     deep = crossing | (dip_hits & ~touch)
-    _, t_cross = bracketed_root(G, jnp.where(deep, sa, upper), upper, G_lower, G_upper)
+    _, t_cross = bracketed_root(G, jnp.where(deep, ends.s_start, upper), upper, G_lower, G_upper)
 
     found = crossing | dip_hits
     time = jnp.where(touch, t_min, t_cross)

@@ -164,3 +164,45 @@ def test_five_surfaces_ten_ulps_apart_all_fire(order):
     assert sorted(np.asarray(sol.impact_surface[:5]).tolist()) == [0, 1, 2, 3, 4]
     assert float(sol.x_final[1]) == 5.0
     assert np.all(np.abs(np.asarray(sol.impact_times[:5]) - 70 * EPS) < 1e3 * EPS)
+
+
+# ------------------------------------------------------------- 5. energy ----------------
+
+
+def test_elastic_bounces_with_dopri8_conserve_energy_to_ulps():
+    """The drift is the solver's rounding (see energy_drift.py): with Dopri8 the speed gains
+    under one ulp per bounce and the impact-time error after 400 bounces stays at the
+    round-off of the times themselves (measured 0.015 ulps/bounce, 3.4e-13, slope 1.02)."""
+    from .energy_drift import drift
+
+    gain, last, _ = drift(diffrax.Dopri8())
+    assert abs(gain) < 1.0
+    # 400 bounces of ~0.9 s: the times reach 361 s, whose ulp is 5.7e-14; allow 50 ulps.
+    assert abs(last) < 50 * 361 * EPS
+
+
+# ------------------------------------------------------------- 6. tangential lift-off ---
+
+
+@pytest.mark.parametrize("lift,omega", [(1.25, 8.0), (1.1, 12.0), (1.5, 16.0)])
+def test_restitution_zero_on_a_table_above_lift_off_never_tunnels(lift, omega):
+    """e = 0 on a table with Aω² > g: the jump leaves ġ = 0 to round-off and the ball lifts
+    off (g̈ > 0). The restart guard read G(sa) = ġ(sa) = 0 or −1 ulp, so a return within the
+    first step went unseen and the ball fell through the table with SUCCESS (before the fix:
+    one impact, x(4) = −70 at lift 1.25, ω = 8). Now the ball stays above the table, and it
+    sticks and is released at the closed-form release times asin(g/Aω²)/ω + 2πm/ω."""
+    g, h0 = 9.81, 0.3
+    A = lift * g / omega**2
+    ts = jnp.linspace(0.0, 4.0, 401)
+    sol = gj.simulate(ex.vibrating_table(), jnp.array([h0, 0.0]), 0.0, 4.0,
+                      {"g": g, "e": 0.0, "A": A, "omega": omega}, rtol=1e-12, atol=1e-12,
+                      max_impacts=500, zeno="stick", saveat=ts)
+    assert gj.Status(int(sol.status)) in (gj.Status.SUCCESS, gj.Status.MAX_IMPACTS)
+    table = A * np.sin(omega * np.asarray(ts))
+    assert np.min(np.asarray(sol.xs[:, 0]) - table) >= -1e-9
+    n = int(sol.num_impacts)
+    kinds = np.asarray(sol.impact_kind[:n])
+    releases = np.asarray(sol.impact_times[:n])[kinds == int(gj.ImpactKind.RELEASE)]
+    assert len(releases) >= 1
+    phase = (omega * releases - np.arcsin(g / (A * omega**2))) / (2 * np.pi)
+    assert np.max(np.abs(phase - np.round(phase))) * 2 * np.pi / omega <= 1e-10

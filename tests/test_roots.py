@@ -1,0 +1,68 @@
+"""The bracketed root search: its invariants, and that it converges like ITP, not bisection."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from grazejax._roots import bracketed_root
+
+EPS = float(np.finfo(np.float64).eps)
+
+CASES = {
+    # name: (fn, lo, hi, root)
+    "linear": (lambda s: 0.37 - s, 0.0, 1.0, 0.37),
+    "quadratic": (lambda s: 0.3 - s + 0.1 * s**2, 0.0, 1.0, (1 - np.sqrt(1 - 0.12)) / 0.2),
+    "exponential": (lambda s: jnp.exp(-3 * s) - 0.5, 0.0, 1.0, np.log(2) / 3),
+    "offset clock": (lambda s: 1e-3 - (s - 100) ** 2, 100.0, 101.0, 100 + np.sqrt(1e-3)),
+    # a crossing next to a flat minimum: the near-grazing case
+    "near grazing": (lambda s: (s - 1) ** 2 - 1e-12, 0.0, 1.0, 1 - 1e-6),
+    "steep": (lambda s: jnp.tanh(1e4 * (0.7 - s)), 0.0, 1.0, 0.7),
+}
+
+
+def _search(fn, lo, hi):
+    lo, hi = jnp.float64(lo), jnp.float64(hi)
+    return jax.jit(lambda: bracketed_root(fn, lo, hi, fn(lo), fn(hi), count=True))()
+
+
+@pytest.mark.parametrize("name", sorted(CASES))
+def test_bracket_invariants_and_iterations(name):
+    fn, lo0, hi0, root = CASES[name]
+    lo, hi, iterations = _search(fn, lo0, hi0)
+    assert lo0 <= lo < hi <= hi0 or float(fn(hi)) == 0
+    assert float(fn(lo)) > 0 >= float(fn(hi))
+    # To a few ulps of the clock, as documented (4 eps·max|s|)...
+    assert float(hi - lo) <= 4 * EPS * max(abs(lo0), abs(hi0)) or float(fn(hi)) == 0
+    # ...around the true root (the root's own conditioning: the near-grazing root moves by
+    # δg/|g'| = eps/2e-6 for a rounding δg of g).
+    assert abs(float(hi) - root) <= 1e-9 if name == "near grazing" else 8 * EPS * (1 + abs(root))
+    # ITP: never more than one iteration over bisection's count, and far fewer on smooth
+    # roots (bisection needs ~50 from a unit bracket to 4 eps).
+    n_half = np.ceil(np.log2((hi0 - lo0) / (4 * EPS * max(abs(lo0), abs(hi0)))))
+    assert int(iterations) <= n_half + 1
+    if name in ("linear", "quadratic", "exponential", "offset clock", "steep"):
+        assert int(iterations) <= 20
+
+
+def test_empty_bracket_costs_nothing():
+    lo, hi, iterations = _search(lambda s: 1.0 - s, 0.5, 0.5)
+    assert int(iterations) == 0 and float(lo) == float(hi) == 0.5
+
+
+def test_random_smooth_roots():
+    """Seeded cubics with one root in [0, 1]: invariants hold and the mean count is small."""
+    rng = np.random.default_rng(0)
+    counts = []
+    for _ in range(40):
+        r = rng.uniform(0.05, 0.95)
+        a, b = rng.uniform(0.1, 3.0, 2)
+
+        def fn(s, r=r, a=a, b=b):
+            return (r - s) * (a + b * (s - r) ** 2)
+
+        lo, hi, iterations = _search(fn, 0.0, 1.0)
+        assert float(fn(lo)) > 0 >= float(fn(hi))
+        assert abs(float(hi) - r) <= 8 * EPS
+        counts.append(int(iterations))
+    assert np.mean(counts) <= 15, counts
