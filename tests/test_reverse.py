@@ -79,8 +79,9 @@ def ball_loss_exact(p):
 
 def ball_loss(p, adjoint, max_steps=100_000):
     args = {"g": p[2], "e": p[3]}
-    sol = gj.simulate(BALL, p[:2], 0.0, BALL_T, args, adjoint=adjoint, max_steps=max_steps,
-                      max_impacts=8, **TIGHT)
+    sol = gj.simulate(
+        BALL, p[:2], 0.0, BALL_T, args, adjoint=adjoint, max_steps=max_steps, max_impacts=8, **TIGHT
+    )
     return sol.x_final[0] + sol.x_final[1] / 2 + sol.impact_times[2]
 
 
@@ -159,8 +160,17 @@ def wall_jacobian_exact(x0, T):
 
 
 def wall_final(x0, adjoint, max_steps=100_000):
-    sol = gj.simulate(WALL, x0, 0.0, WALL_T, WALL_ARGS, adjoint=adjoint, max_steps=max_steps,
-                      max_impacts=4, **TIGHT)
+    sol = gj.simulate(
+        WALL,
+        x0,
+        0.0,
+        WALL_T,
+        WALL_ARGS,
+        adjoint=adjoint,
+        max_steps=max_steps,
+        max_impacts=4,
+        **TIGHT,
+    )
     return sol.x_final
 
 
@@ -195,8 +205,17 @@ OSC_T = 12.0
 def osc_loss(p, adjoint, max_steps=100_000):
     """Sum of the first three impact times plus the final state, as a function of args."""
     args = dict(zip(OSC_NAMES, p, strict=True))
-    sol = gj.simulate(OSC, jnp.zeros(2), 0.0, OSC_T, args, adjoint=adjoint,
-                      max_steps=max_steps, max_impacts=16, **TIGHT)
+    sol = gj.simulate(
+        OSC,
+        jnp.zeros(2),
+        0.0,
+        OSC_T,
+        args,
+        adjoint=adjoint,
+        max_steps=max_steps,
+        max_impacts=16,
+        **TIGHT,
+    )
     return jnp.sum(sol.impact_times[:3]) + sol.x_final[0] + sol.x_final[1]
 
 
@@ -242,8 +261,17 @@ def test_zeno_sticking_run():
     T = 6.0  # accumulation at ≈ 4.06 from (1, 0), e = 0.8
 
     def loss(p, adjoint):
-        sol = gj.simulate(BALL, p[:2], 0.0, T, {"g": p[2], "e": p[3]}, adjoint=adjoint,
-                          zeno="stick", max_impacts=200, **TIGHT)
+        sol = gj.simulate(
+            BALL,
+            p[:2],
+            0.0,
+            T,
+            {"g": p[2], "e": p[3]},
+            adjoint=adjoint,
+            zeno="stick",
+            max_impacts=200,
+            **TIGHT,
+        )
         return jnp.sum(sol.impact_times[:5]) + sol.x_final[0], sol
 
     def exact(p):
@@ -280,8 +308,9 @@ def test_backward_time_inverts_the_forward_jacobian():
     args = {"g": jnp.asarray(9.81), "e": jnp.asarray(0.8)}
 
     def back(y, adjoint):
-        return gj.simulate(BALL, y, BALL_T, 0.0, args, adjoint=adjoint, max_impacts=8,
-                           **TIGHT).x_final
+        return gj.simulate(
+            BALL, y, BALL_T, 0.0, args, adjoint=adjoint, max_impacts=8, **TIGHT
+        ).x_final
 
     exact = np.linalg.inv(np.asarray(jax.jacfwd(forward_map)(x0)))
     reverse = jax.jit(jax.jacrev(lambda y: back(y, RCA)))(xT)
@@ -325,3 +354,65 @@ def test_default_adjoint_grad_names_the_fix():
 def test_unsupported_adjoint_is_a_value_error():
     with pytest.raises(ValueError, match="BacksolveAdjoint"):
         gj.simulate(SPRING, [1.0, 0.0], 0.0, 1.0, adjoint=diffrax.BacksolveAdjoint())
+
+
+# ------------------------------------------------- the analysis functions' adjoint ---------
+
+
+def third_impact_time(sol):
+    return sol.impact_times[2]
+
+
+def test_scalar_gradient_and_flow_jacobian_in_reverse_mode():
+    """With a reverse-only adjoint both must differentiate backward (jacfwd would raise):
+    ∂t_3/∂e = 2w(1 + 2e)/g, and the wall's Jacobian is R(T − t1) S R(t1)."""
+    h, g, e = 1.0, 9.81, 0.8
+    args = {"g": jnp.asarray(g), "e": jnp.asarray(e)}
+    r = gj.scalar_gradient(
+        third_impact_time, BALL, [h, 0.0], 0.0, 2.0, args, wrt="args", adjoint=RCA, **TIGHT
+    )
+    assert int(r.status) == gj.DerivativeStatus.OK
+    w = math.sqrt(2 * g * h)
+    np.testing.assert_allclose(r.grad["e"], 2 * w * (1 + 2 * e) / g, rtol=EXACT)
+    j = gj.flow_jacobian(WALL, WALL_X0, 0.0, WALL_T, WALL_ARGS, adjoint=RCA, **TIGHT)
+    assert int(j.status) == gj.DerivativeStatus.OK
+    assert_close(j.jacobian, wall_jacobian_exact(WALL_X0, WALL_T), EXACT)
+
+
+def test_sweep_checks_the_adjoint_and_runs_the_primal():
+    x0s = np.array([[1.0, 0.0], [0.7, 0.5]])
+    args = {"g": 9.81, "e": 0.8}
+    plain = gj.sweep(BALL, x0s, 0.0, 2.0, args, progress=False, max_impacts=8)
+    with_adjoint = gj.sweep(BALL, x0s, 0.0, 2.0, args, progress=False, max_impacts=8, adjoint=RCA)
+    np.testing.assert_array_equal(with_adjoint.x_final, plain.x_final)
+    with pytest.raises(ValueError, match="BacksolveAdjoint"):
+        gj.sweep(BALL, x0s, 0.0, 2.0, args, progress=False, adjoint=diffrax.BacksolveAdjoint())
+
+
+@pytest.mark.slow  # the period map compiled in a bounded loop, then transposed
+def test_periodic_orbit_grad_with_direct_adjoint():
+    """The forced oscillator's non-impacting orbit (stop far away) is x_p(0) = (a, bω), with
+    a = A(1 − ω²)/D: ∂a/∂A = (1 − ω²)/D, by jax.grad through Newton's implicit adjoint."""
+    base = ex.impact_oscillator_args(sigma=5.0)
+    period = 2 * math.pi / float(base["omega"])
+
+    def start(A, adjoint):
+        orbit = gj.find_periodic_orbit(
+            OSC,
+            [0.8, 0.0],
+            period,
+            dict(base, A=A),
+            fixed_period=True,
+            start_at_impact=False,
+            adjoint=adjoint,
+            rtol=TOL,
+            atol=TOL,
+        )
+        return orbit.x0[0]
+
+    w, z = float(base["omega"]), float(base["zeta"])
+    D = (1 - w * w) ** 2 + (2 * z * w) ** 2
+    grad = jax.grad(lambda A: start(A, DIRECT))(jnp.asarray(1.0))
+    np.testing.assert_allclose(grad, (1 - w * w) / D, rtol=EXACT)
+    with pytest.raises(ValueError, match="DirectAdjoint"):
+        start(jnp.asarray(1.0), RCA)
