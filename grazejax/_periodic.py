@@ -620,6 +620,12 @@ def find_periodic_orbit(
     if _is_concrete(x_guess) and not np.all(np.isfinite(np.asarray(x_guess))):
         raise ValueError(f"x0 contains NaN or inf: {np.asarray(x_guess)}")
 
+    if not loop_kinds(adjoint).forward:
+        raise ValueError(
+            "find_periodic_orbit: Newton's method linearises the period map in forward mode, "
+            "which adjoint=diffrax.RecursiveCheckpointAdjoint() does not support; pass "
+            "adjoint=diffrax.DirectAdjoint() to differentiate the orbit with jax.grad"
+        )
     pmap = _PeriodMap(
         scene=scene, end_impacts=0, solver=solver, rtol=float(rtol), atol=float(atol),
         max_impacts=int(max_impacts), max_solver_steps=int(max_solver_steps),
@@ -642,12 +648,6 @@ def find_periodic_orbit(
                 "pass num_impacts"
             )
     pmap = dataclasses.replace(pmap, end_impacts=int(num_impacts) if start_at_impact else 0)
-    if not loop_kinds(adjoint).forward:
-        raise ValueError(
-            "find_periodic_orbit: Newton's method linearises the period map in forward mode, "
-            "which adjoint=diffrax.RecursiveCheckpointAdjoint() does not support; pass "
-            "adjoint=diffrax.DirectAdjoint() to differentiate the orbit with jax.grad"
-        )
     if root_finder is None:
         root_finder = optx.Newton(rtol=newton_tol, atol=newton_tol)
     requested = jnp.asarray(-1 if num_impacts is None else int(num_impacts))
@@ -668,7 +668,8 @@ def find_periodic_orbit(
     # Only Newton's runs carry the adjoint: the diagnostics are evaluated without
     # derivatives, on the (faster) forward-mode loop.
     value, converged, num_steps = _newton(
-        dataclasses.replace(pmap, adjoint=adjoint), fixed_period, root_finder, int(max_steps), y0, t0, T_guess, args, j, c
+        dataclasses.replace(pmap, adjoint=adjoint), fixed_period, root_finder, int(max_steps),
+        y0, t0, T_guess, args, j, c,
     )
     # A diverged solve hands back its starting point (with the diagnostics there), never NaN.
     finite_y = jnp.all(jnp.isfinite(lax.stop_gradient(value)))
