@@ -14,7 +14,12 @@ import sys
 from pathlib import Path
 
 BENCH_SCRIPT = Path("benchmarks") / "bench_suite.py"
-BENCH_SCRIPTS = {"suite": "bench_suite.py", "core": "bench_core.py", "sweep": "bench_sweep.py"}
+BENCH_SCRIPTS = {
+    "suite": "bench_suite.py",
+    "core": "bench_core.py",
+    "sweep": "bench_sweep.py",
+    "gradients": "bench_gradients.py",
+}
 DEFAULT_OUT = "grazejax-output"  # kept equal to grazejax._reproduce.DEFAULT_OUT
 
 
@@ -87,8 +92,9 @@ def _build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--out", metavar="DIR", default=None,
                        help="output folder (default: bench-output/ in the source checkout)")
     bench.add_argument("--script", choices=sorted(BENCH_SCRIPTS), default="suite",
-                       help="which benchmark to run: the suite (default), or the older "
-                            "bench_core.py / bench_sweep.py")
+                       help="which benchmark to run: the suite (default), the older "
+                            "bench_core.py / bench_sweep.py, or bench_gradients.py (reverse "
+                            "mode's cost; writes benchmarks/results/ unless --out)")
     bench.add_argument("--smoke", action="store_true", help=argparse.SUPPRESS)  # for the tests
     bench.add_argument("bench_args", nargs=argparse.REMAINDER, help="arguments for the script")
     return parser

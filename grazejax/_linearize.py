@@ -22,11 +22,13 @@ Paper objects (Akhmet & Kıvılcım, *Discontinuous dynamics with grazing points
   non-impacting (N2) neighbours ([`grazejax.one_sided_jacobians`][]), and the (A2)
   diagnostic, the growth exponent of ‖W_x‖ at a grazing point ([`grazejax.a2_diagnostic`][]).
 
-**Reverse mode.** `jax.grad` (and `jax.vjp`) through `simulate` raise, because the impact
-loop is a `lax.while_loop` with a data-dependent trip count, which JAX cannot transpose.
-Use forward mode: [`grazejax.scalar_gradient`][] is the drop-in replacement for
-`jax.grad(loss)` (its cost is one tangent per input coordinate, cheap for the small
-state and parameter spaces of impact systems).
+**Reverse mode.** [`grazejax.flow_jacobian`][] and [`grazejax.scalar_gradient`][] take
+`simulate`'s `adjoint=`: with the default (`diffrax.ForwardMode()`) they differentiate in
+forward mode (one tangent per input coordinate, cheap for small state and parameter
+spaces); with `diffrax.RecursiveCheckpointAdjoint()` or `diffrax.DirectAdjoint()`,
+`scalar_gradient` uses `jax.grad` (one backward pass, whatever the number of parameters)
+and `flow_jacobian` uses `jax.jacrev` where forward mode is unavailable. The pointwise
+analyses below (τ_i, W_i, classification) are forward mode only.
 
 **Status, not NaN.** Every result carries a [`grazejax.DerivativeStatus`][]. Near grazing
 ∇Φ·f → 0 and the true derivatives grow without bound (like 1/(∇Φ·f)); they are returned
@@ -50,6 +52,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
+from ._adjoint import loop_kinds
 from ._flow import flight_kwargs, free_flow
 from ._geometry import boundary_tol, closed_piece, inverse_jump, on_piece
 from ._roots import safe_divide
@@ -488,17 +491,19 @@ def _flow_jacobian_impl(scene, x0, t0, t1, args, wrt, kw):
         sol = simulate(scene, x0_, t0, t1, args_, **kw)
         return sol.x_final, sol
 
+    # Forward mode where the loop supports it: n tangents for n outputs and inputs alike.
+    jacobian = jax.jacfwd if loop_kinds(kw.get("adjoint")).forward else jax.jacrev
     if wrt == "x0":
-        jac, sol = jax.jacfwd(lambda z: run(z, args), has_aux=True)(x0)
+        jac, sol = jacobian(lambda z: run(z, args), has_aux=True)(x0)
     else:
-        jac, sol = jax.jacfwd(lambda a: run(x0, a), has_aux=True)(args)
+        jac, sol = jacobian(lambda a: run(x0, a), has_aux=True)(args)
     return FlowJacobian(sol.x_final, jac, _run_status(sol, jac), sol)
 
 
 def flow_jacobian(
     scene: Scene, x0, t0, t1, args=None, *, wrt: str = "x0", **simulate_kwargs
 ) -> FlowJacobian:
-    r"""Jacobian of the final state of a run with impacts, by `jax.jacfwd` through `simulate`.
+    r"""Jacobian of the final state of a run with impacts, by autodiff through `simulate`.
 
     It is the exact derivative of the discrete scheme, i.e. the product of the flow
     Jacobians of the flights and the saltation matrices of the impacts (DESIGN.md §4),
@@ -511,7 +516,9 @@ def flow_jacobian(
     - `wrt`: `"x0"` for ∂x(t1)/∂x0, shape `(n, n)`; `"args"` for ∂x(t1)/∂args (a pytree
       like `args`, each leaf with a leading axis of size n; leaves must be floats).
     - `**simulate_kwargs`: passed to `simulate` (`rtol`, `atol`, `solver`, `max_impacts`,
-      ...). Use tight tolerances (1e-12) for derivatives.
+      `adjoint`, ...). Use tight tolerances (1e-12) for derivatives. The Jacobian is
+      `jax.jacfwd` unless `adjoint` is reverse-only
+      (`diffrax.RecursiveCheckpointAdjoint()`): then `jax.jacrev`.
 
     **Returns:** a [`grazejax.FlowJacobian`][]; its `status` is GRAZING if some impact of
     the run was tangential (the derivative does not exist there). A run that stops early
@@ -537,29 +544,35 @@ def _scalar_gradient_impl(loss, scene, x0, t0, t1, args, wrt, kw):
         value = loss(sol)
         return value, (value, sol)
 
+    # One backward pass for any number of inputs where the loop can be reversed; else one
+    # tangent per input.
+    gradient = jax.grad if loop_kinds(kw.get("adjoint")).reverse else jax.jacfwd
     if wrt == "x0":
-        grad, (value, sol) = jax.jacfwd(lambda z: run(z, args), has_aux=True)(x0)
+        grad, (value, sol) = gradient(lambda z: run(z, args), has_aux=True)(x0)
     else:
-        grad, (value, sol) = jax.jacfwd(lambda a: run(x0, a), has_aux=True)(args)
+        grad, (value, sol) = gradient(lambda a: run(x0, a), has_aux=True)(args)
     return ScalarGradient(value, grad, _run_status(sol, grad), sol)
 
 
 def scalar_gradient(
     loss, scene: Scene, x0, t0, t1, args=None, *, wrt: str = "x0", **simulate_kwargs
 ) -> ScalarGradient:
-    r"""Gradient of a scalar loss of a run, in forward mode: the working `jax.grad`.
+    r"""Gradient of a scalar loss of a run, in the mode that `adjoint` allows.
 
-    `jax.grad(lambda x0: loss(simulate(...)))` raises ("Reverse-mode differentiation does
-    not work for lax.while_loop"): the impact loop has a data-dependent number of
-    iterations. This computes the same gradient with `jax.jacfwd` (one tangent per
-    coordinate of `x0`, or per scalar in `args`).
+    With the default adjoint (`diffrax.ForwardMode()`) `jax.grad` through `simulate` raises
+    (the impact loop is a `lax.while_loop`): this computes the same gradient with
+    `jax.jacfwd`, one tangent per coordinate of `x0` or scalar in `args`. With
+    `adjoint=diffrax.RecursiveCheckpointAdjoint()` or `diffrax.DirectAdjoint()` it uses
+    `jax.grad`: one backward pass, the choice for many parameters (a forcing profile, a
+    restitution law per contact).
 
     **Arguments:**
 
     - `loss`: `loss(solution) -> scalar`, a JAX function of the [`grazejax.Solution`][]
       (e.g. `lambda s: s.impact_times[2]` or `lambda s: s.x_final @ s.x_final`). It is a
       static part of the compiled program: define it once, not as a fresh lambda per call.
-    - `scene`, `x0`, `t0`, `t1`, `args`, `**simulate_kwargs`: as for [`grazejax.simulate`][].
+    - `scene`, `x0`, `t0`, `t1`, `args`, `**simulate_kwargs`: as for [`grazejax.simulate`][]
+      (`adjoint` picks the mode, see above).
     - `wrt`: `"x0"` or `"args"`.
 
     **Returns:** a [`grazejax.ScalarGradient`][] (`value`, `grad`, `status`, `solution`).

@@ -27,7 +27,8 @@ S = DJ + (f⁺ − DJ f⁻)∇Φᵀ/(∇Φ·f⁻), i.e. U = S_k Φ(θ_k, θ_{k�
 
 **Differentiation.** Newton runs in `optx.root_find`, whose implicit adjoint gives
 derivatives of the orbit (x0, period) with respect to `args` by the implicit function
-theorem; `jax.jacfwd` works (reverse mode does not go through `simulate`). Diagnostics
+theorem; `jax.jacfwd` works, and `jax.grad` with `adjoint=diffrax.DirectAdjoint()` (the
+residual's derivative in `args` then runs backward through `simulate`). Diagnostics
 (monodromy, multipliers, (A6)) are evaluated at the solution without derivatives.
 """
 
@@ -47,6 +48,7 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, Bool, Complex, Float, Int
 
+from ._adjoint import loop_kinds
 from ._flow import short_free_flow
 from ._geometry import FLOOR_ULPS, gap_rates, on_surface
 from ._linearize import saltation_matrix
@@ -242,11 +244,13 @@ class _PeriodMap(eqx.Module):
     atol: float = eqx.field(static=True)
     max_impacts: int = eqx.field(static=True)
     max_solver_steps: int = eqx.field(static=True)
+    adjoint: Any = eqx.field(static=True, default=None)  # simulate's; Newton's runs only
 
     def run(self, x0, t0, t1, args, max_impacts):
         return simulate(
             self.scene, x0, t0, t1, args, solver=self.solver, rtol=self.rtol, atol=self.atol,
             max_impacts=max_impacts, max_steps=self.max_solver_steps, direction=1,
+            adjoint=self.adjoint,
         )
 
     def __call__(self, x0, t0, T, args):
@@ -520,6 +524,7 @@ def find_periodic_orbit(
     newton_tol: float = 1e-8,
     max_impacts: int = 64,
     max_solver_steps: int = 50_000,
+    adjoint=None,
 ) -> Orbit:
     r"""Find a periodic orbit near a guess: Newton's method on the Poincaré criterion.
 
@@ -553,6 +558,11 @@ def find_periodic_orbit(
     - `max_steps`: Newton iterations.
     - `newton_tol`: tolerance on the residual and the Newton step.
     - `max_impacts`: size of the impact log (impacts per period must not exceed it).
+    - `adjoint`: [`grazejax.simulate`][]'s, for the runs that Newton's method solves.
+      The default (`diffrax.ForwardMode()`) lets `jax.jacfwd` differentiate the orbit with
+      respect to `args` (implicit function theorem); `diffrax.DirectAdjoint()` also lets
+      `jax.grad` do it. Newton linearises in forward mode, so the reverse-only
+      `diffrax.RecursiveCheckpointAdjoint()` is a `ValueError`.
 
     **Returns:** an [`grazejax.Orbit`][]. Failure is a status (`orbit.message`), never an
     exception inside `jit`; a diverged solve returns its starting point (the guess, after
@@ -585,6 +595,12 @@ def find_periodic_orbit(
     if is_concrete(x_guess) and not np.all(np.isfinite(np.asarray(x_guess))):
         raise ValueError(f"x0 contains NaN or inf: {np.asarray(x_guess)}")
 
+    if not loop_kinds(adjoint).forward:
+        raise ValueError(
+            "find_periodic_orbit: Newton's method linearises the period map in forward mode, "
+            "which adjoint=diffrax.RecursiveCheckpointAdjoint() does not support; pass "
+            "adjoint=diffrax.DirectAdjoint() to differentiate the orbit with jax.grad"
+        )
     pmap = _PeriodMap(
         scene=scene, end_impacts=0, solver=solver, rtol=float(rtol), atol=float(atol),
         max_impacts=int(max_impacts), max_solver_steps=int(max_solver_steps),
@@ -624,8 +640,11 @@ def find_periodic_orbit(
     else:
         T_start = _refine_period(pmap, x_guess, t0, T_guess, args_const, j, c, lin)
         y0 = jnp.concatenate([T_start[None], x_guess])
+    # Only Newton's runs carry the adjoint: the diagnostics are evaluated without
+    # derivatives, on the (faster) forward-mode loop.
     value, converged, num_steps = _newton(
-        pmap, fixed_period, root_finder, int(max_steps), y0, t0, T_guess, args, j, c
+        dataclasses.replace(pmap, adjoint=adjoint), fixed_period, root_finder, int(max_steps),
+        y0, t0, T_guess, args, j, c,
     )
     # A diverged solve hands back its starting point (with the diagnostics there), never NaN.
     finite_y = jnp.all(jnp.isfinite(lax.stop_gradient(value)))

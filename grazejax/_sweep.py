@@ -38,6 +38,7 @@ import jax
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
+from ._adjoint import loop_kinds
 from ._pool import run_pool
 from ._scene import Scene
 from ._simulate import _throw_if_failed, prepare, simulate
@@ -130,7 +131,9 @@ def sweep(
       less on the last lanes of a chunk.
     - `progress`: show a tqdm progress bar across chunks.
     - `**simulate_kwargs`: every keyword option of `simulate` (rtol, atol, solver,
-      max_impacts, saveat, ...).
+      max_impacts, saveat, ...). `adjoint` is checked and otherwise has no effect: the
+      results are NumPy arrays, not differentiable (differentiate a batch with
+      `jax.vmap` of `jax.grad` through [`grazejax.simulate`][] instead).
 
     **Returns:** a [`grazejax.Solution`][] whose fields are NumPy arrays with a leading batch
     axis, in the order of the inputs (with `saveat`, `ts` too has one row per lane). A lane
@@ -150,6 +153,12 @@ def sweep(
         raise TypeError(f"sweep got unknown simulate options: {sorted(unknown)}")
     if "direction" in simulate_kwargs:
         raise TypeError("sweep sets direction itself (from t0 and t1)")
+    if "adjoint" in simulate_kwargs:
+        # The results come back as NumPy arrays, so nothing downstream can differentiate
+        # them: check the adjoint (an unsupported one is the same error as in simulate)
+        # and run the primal loop, the fastest kind (a bounded loop is several times slower).
+        simulate_kwargs = dict(simulate_kwargs)
+        loop_kinds(simulate_kwargs.pop("adjoint"))
     if balance not in _BALANCES:
         raise ValueError(f"balance must be one of {_BALANCES}, got {balance!r}")
     if pool_size is not None and (

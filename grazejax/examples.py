@@ -303,6 +303,44 @@ def impact_oscillator_args(zeta=0.05, A=1.0, omega=1.5, sigma=0.2, r=0.8) -> dic
     return {k: jnp.asarray(v, float) for k, v in values.items()}
 
 
+def fourier_impact_oscillator() -> Scene:
+    r"""The impact oscillator forced by a Fourier series: a many-parameter scene.
+
+    x' = v, v' = −2ζ v − x + F(t), F(t) = Σ_{k=1}^{M} a_k cos(k ω t) + b_k sin(k ω t);
+    stop at x = σ (Φ = σ − x), impact law v → −r v. `args = {"zeta", "omega", "sigma",
+    "r", "a", "b"}` with `a`, `b` arrays of M coefficients (see
+    `fourier_impact_oscillator_args`): 2M forcing parameters, the case for `jax.grad`
+    (`adjoint=diffrax.RecursiveCheckpointAdjoint()`). With `a = (A, 0, …)`, `b = 0` it is
+    `impact_oscillator()`.
+    """
+
+    def vector_field(t, x, args):
+        k = jnp.arange(1, args["a"].shape[0] + 1, dtype=x.dtype)
+        phase = k * args["omega"] * t
+        force = jnp.sum(args["a"] * jnp.cos(phase) + args["b"] * jnp.sin(phase))
+        return jnp.stack([x[1], -2 * args["zeta"] * x[1] - x[0] + force])
+
+    stop = Surface(
+        phi=lambda t, x, args: args["sigma"] - x[0],
+        jump=lambda t, x, args: x.at[1].set(-args["r"] * x[1]),
+        inverse_jump=lambda t, x, args: x.at[1].set(-x[1] / args["r"]),
+        name="stop",
+        impenetrable=True,
+    )
+    return Scene(vector_field, [stop])
+
+
+def fourier_impact_oscillator_args(a, b=None, zeta=0.05, omega=1.5, sigma=0.2, r=0.8) -> dict:
+    """Arguments of `fourier_impact_oscillator`: cosine coefficients `a` and sine
+    coefficients `b` (zeros like `a` by default)."""
+    a = jnp.asarray(a, float)
+    b = jnp.zeros_like(a) if b is None else jnp.asarray(b, float)
+    if a.shape != b.shape or a.ndim != 1:
+        raise ValueError(f"a and b must be vectors of one length, got {a.shape} and {b.shape}")
+    values = dict(zeta=zeta, omega=omega, sigma=sigma, r=r)
+    return {**{k: jnp.asarray(v, float) for k, v in values.items()}, "a": a, "b": b}
+
+
 def linear_response(t, args):
     """Steady non-impacting response of the impact oscillator (closed form).
 

@@ -22,6 +22,17 @@ def free_fall_scene(restitution=0.8):
     return gj.Scene(vector_field, [floor])
 
 
+def central_differences(fn, x, step):
+    """(fn(x + h e_j) - fn(x - h e_j)) / 2h for each coordinate j, as the last axis: the
+    Jacobian, with error h² |third derivative|/6 plus fn's own noise divided by h."""
+    x = np.asarray(x, float)
+    cols = [
+        (np.asarray(fn(x + step * e)) - np.asarray(fn(x - step * e))) / (2 * step)
+        for e in np.eye(len(x))
+    ]
+    return np.stack(cols, axis=-1)
+
+
 def dip_start(delta, a, v0):
     """Start (h, v0) of a parabola x = h + v0 t + a t²/2 whose minimum is −delta.
 

@@ -30,7 +30,7 @@ from grazejax._linearize import (
     w_map,
 )
 
-from .helpers import free_fall_scene
+from .helpers import central_differences, free_fall_scene
 
 TIGHT = dict(rtol=1e-12, atol=1e-12)
 FREE_FALL = free_fall_scene(restitution=0.8)
@@ -46,15 +46,6 @@ LOOKBACK = 0.5  # one value everywhere: w_map compiles once
 def shift(s):
     """Flow Jacobian of free fall over a time s (exact)."""
     return np.array([[1.0, s], [0.0, 1.0]])
-
-
-def central_differences(fn, x, step):
-    x = np.asarray(x, float)
-    cols = [
-        (np.asarray(fn(x + step * e)) - np.asarray(fn(x - step * e))) / (2 * step)
-        for e in np.eye(len(x))
-    ]
-    return np.stack(cols, axis=-1)
 
 
 # ------------------------------------------------------------- saltation ------------
@@ -249,15 +240,6 @@ def test_scalar_gradient_bouncing_ball_dtn_de():
         - ex.bouncing_ball_impact_times(h, 0.0, g - step, e, 3)[0][2]
     ) / (2 * step)
     np.testing.assert_allclose(r.grad["g"], fd, rtol=1e-7)
-
-
-@pytest.mark.slow  # tracing the transpose of the whole loop takes ~15 s before it raises
-def test_reverse_mode_raises_so_use_scalar_gradient():
-    def loss(x0):
-        return gj.simulate(BALL, x0, 0.0, 2.0, {"g": 9.81, "e": 0.8}).x_final[0]
-
-    with pytest.raises(ValueError, match="Reverse-mode differentiation does not work"):
-        jax.grad(loss)(jnp.array([1.0, 0.0]))
 
 
 # ------------------------------------------------- meeting time, W-map -------------

@@ -1,0 +1,377 @@
+"""Reverse mode through impacts: what `jax.grad` costs against the primal run and `jax.jacfwd`.
+
+    python benchmarks/bench_gradients.py [--quick] [--out DIR]
+    grazejax bench --script gradients [--quick]
+
+Writes into DIR (default benchmarks/results/): `gradients.json` (every number, the machine
+and package versions), `gradients_impacts.csv`, `gradients_direct.csv`,
+`gradients_many.csv`, and `gradients.md` (the tables of benchmarks/README.md).
+
+Sections:
+
+1. **impacts**: the forced impact oscillator (`examples.impact_oscillator()`, default
+   args: a stable period-1 motion, one impact and ~53 Tsit5 steps per forcing period) run
+   to 10, 100 and 1000 impacts (t1 chosen for the count; one impact log of 1000 rows in
+   every run, so that each mode is one compiled program). Loss = mean impact time +
+   x_final·(1, 1), differentiated with respect to 7 inputs (x0 and the 5 args). Times:
+   the primal run, `jax.jacfwd` (default adjoint, 7 tangents) and `jax.grad` with
+   `diffrax.RecursiveCheckpointAdjoint(checkpoints=c)` for several c (None: Equinox's
+   default, ⌊√(2·max_steps)⌋ ≈ 447 for max_steps = 100 000).
+2. **memory**: XLA's own account of each compiled program,
+   `jax.jit(f).lower(...).compile().memory_analysis()`: `temp_size_in_bytes` (the scratch
+   buffers: checkpoints, residuals, loop carries) is the number reported; argument and
+   output sizes are tiny here.
+3. **direct**: `jax.grad` with `diffrax.DirectAdjoint()` (a bounded loop that stores every
+   step up to `max_steps`; set to 1.5× the steps the run needs) at 10 (and 100) impacts.
+4. **many**: a Fourier-forced impact oscillator (`examples.fourier_impact_oscillator()`,
+   M = 50 harmonics, 100 parameters; also M = 200 in the full run); loss = Σ_{i≤K} (t_i − t_i^obs)² over the first K
+   impact times against those of another profile. `jax.grad` (RecursiveCheckpointAdjoint)
+   vs `jax.jacfwd` (2M tangents).
+
+Every time is the min (and median) of repeats after compilation, with
+`block_until_ready`; compile times are reported separately. `--quick` (< 2 minutes on a
+shared 2-core machine) uses fewer checkpoint counts and repeats.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import functools
+import json
+import math
+import os
+import sys
+import time
+
+import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+
+import diffrax  # noqa: E402
+import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+from _cases import SHARED_MACHINE_NOTE, log, machine, measure, versions  # noqa: E402
+
+import grazejax as gj  # noqa: E402  (turns float64 on)
+from grazejax import examples  # noqa: E402
+
+TOL = dict(rtol=1e-8, atol=1e-10)
+PERIOD = 2 * math.pi / 1.5  # forcing period of the default impact oscillator
+LOG_ROWS = 1000  # impact log of every run in section 1
+NAMES = ("zeta", "A", "omega", "sigma", "r")
+OSC = examples.impact_oscillator()
+FOURIER = examples.fourier_impact_oscillator()
+P0 = np.concatenate([[0.0, 0.0], [float(v) for v in examples.impact_oscillator_args().values()]])
+
+
+def _loss(p, t1, adjoint, max_steps=100_000, max_impacts=LOG_ROWS):
+    args = dict(zip(NAMES, p[2:], strict=True))
+    sol = gj.simulate(
+        OSC,
+        p[:2],
+        0.0,
+        t1,
+        args,
+        adjoint=adjoint,
+        max_steps=max_steps,
+        max_impacts=max_impacts,
+        direction=1,
+        **TOL,
+    )
+    rows = jnp.arange(max_impacts) < sol.num_impacts
+    mean_time = jnp.sum(jnp.where(rows, sol.impact_times, 0.0)) / jnp.maximum(sol.num_impacts, 1)
+    return mean_time + sol.x_final[0] + sol.x_final[1]
+
+
+def _compile(fn, *example):
+    """`(compiled, seconds, memory)`: one XLA program, and its memory as XLA accounts it."""
+    t = time.perf_counter()
+    compiled = jax.jit(fn).lower(*example).compile()
+    seconds = time.perf_counter() - t
+    mem = compiled.memory_analysis()
+    memory = {
+        "temp_bytes": int(mem.temp_size_in_bytes),
+        "argument_bytes": int(mem.argument_size_in_bytes),
+        "output_bytes": int(mem.output_size_in_bytes),
+    }
+    return compiled, seconds, memory
+
+
+def _time(compiled, *inputs, budget_s, max_repeats):
+    def call():
+        return jax.block_until_ready(compiled(*inputs))
+
+    out, st = measure(call, budget_s=budget_s, max_repeats=max_repeats, min_repeats=2)
+    return out, st
+
+
+def _modes(checkpoints):
+    modes = {
+        "primal": (lambda p, t1: _loss(p, t1, None)),
+        "jacfwd": jax.jacfwd(lambda p, t1: _loss(p, t1, None)),
+    }
+    for c in checkpoints:
+        adjoint = diffrax.RecursiveCheckpointAdjoint(checkpoints=c)
+        modes[f"grad_rca_{c or 'default'}"] = jax.grad(
+            lambda p, t1, adjoint=adjoint: _loss(p, t1, adjoint)
+        )
+    return modes
+
+
+def section_impacts(sizes, checkpoints, budget_s, max_repeats):
+    """Gradient cost vs the primal at several impact counts, and memory per mode."""
+    p = jnp.asarray(P0)
+    rows, memory, programs = [], [], {}
+    for name, fn in _modes(checkpoints).items():
+        compiled, compile_s, mem = _compile(fn, p, jnp.asarray(1.0))
+        programs[name] = compiled
+        memory.append({"mode": name, "compile_s": compile_s, **mem})
+        log(f"  {name}: compiled in {compile_s:.1f} s, temp {mem['temp_bytes'] / 2**20:.1f} MiB")
+        for n in sizes:
+            t1 = jnp.asarray(n * PERIOD + 1.0)  # the n-th impact comes near n·PERIOD − 0.1
+            out, st = _time(compiled, p, t1, budget_s=budget_s, max_repeats=max_repeats)
+            rows.append(
+                {
+                    "mode": name,
+                    "target_impacts": n,
+                    "min_s": st["min_s"],
+                    "median_s": st["median_s"],
+                    "repeats": st["repeats"],
+                    "finite": bool(np.all(np.isfinite(np.asarray(out)))),
+                }
+            )
+    # Check the impact counts and the agreement of the modes once, outside the timings.
+    run = jax.jit(
+        lambda p, t1: gj.simulate(
+            OSC,
+            p[:2],
+            0.0,
+            t1,
+            dict(zip(NAMES, p[2:], strict=True)),
+            max_impacts=LOG_ROWS,
+            direction=1,
+            **TOL,
+        )
+    )
+    for r in rows:
+        t1 = jnp.asarray(r["target_impacts"] * PERIOD + 1.0)
+        sol = run(p, t1)
+        r["impacts"], r["steps"] = int(sol.num_impacts), int(sol.num_steps)
+    primal = {r["target_impacts"]: r["min_s"] for r in rows if r["mode"] == "primal"}
+    for r in rows:
+        r["ratio_to_primal"] = r["min_s"] / primal[r["target_impacts"]]
+    return rows, memory, programs
+
+
+def section_agreement(compiled):
+    """grad (every checkpoint count) equals jacfwd at 10 impacts: the benchmark times the
+    right thing. Reuses the programs compiled for the timings."""
+    p, t1 = jnp.asarray(P0), jnp.asarray(10 * PERIOD + 1.0)
+    ref = np.asarray(compiled["jacfwd"](p, t1))
+    worst = 0.0
+    for name, program in compiled.items():
+        if name.startswith("grad"):
+            g = np.asarray(program(p, t1))
+            worst = max(worst, float(np.max(np.abs(g - ref)) / np.max(np.abs(ref))))
+    return worst
+
+
+def section_direct(sizes, budget_s, max_repeats):
+    p = jnp.asarray(P0)
+    rows = []
+    for n in sizes:
+        t1 = jnp.asarray(n * PERIOD + 1.0)
+        steps = int(
+            jax.jit(
+                lambda p, t1: (
+                    gj.simulate(
+                        OSC,
+                        p[:2],
+                        0.0,
+                        t1,
+                        dict(zip(NAMES, p[2:], strict=True)),
+                        max_impacts=LOG_ROWS,
+                        direction=1,
+                        **TOL,
+                    ).num_steps
+                )
+            )(p, t1)
+        )
+        max_steps = int(1.5 * steps)
+        grad = jax.grad(
+            functools.partial(_loss, adjoint=diffrax.DirectAdjoint(), max_steps=max_steps)
+        )
+        primal = functools.partial(_loss, adjoint=None, max_steps=max_steps)
+        row = {"target_impacts": n, "steps": steps, "max_steps": max_steps}
+        for name, fn in (("primal", primal), ("grad_direct", grad)):
+            compiled, compile_s, mem = _compile(fn, p, t1)
+            _, st = _time(compiled, p, t1, budget_s=budget_s, max_repeats=max_repeats)
+            row[f"{name}_min_s"], row[f"{name}_compile_s"] = st["min_s"], compile_s
+            row[f"{name}_temp_bytes"] = mem["temp_bytes"]
+        row["ratio_to_primal"] = row["grad_direct_min_s"] / row["primal_min_s"]
+        log(
+            f"  direct, {n} impacts: grad/primal {row['ratio_to_primal']:.2f}, "
+            f"temp {row['grad_direct_temp_bytes'] / 2**20:.1f} MiB"
+        )
+        rows.append(row)
+    return rows
+
+
+def fourier_loss(coefficients, observed, adjoint, harmonics, num_times):
+    a, b = coefficients[:harmonics], coefficients[harmonics:]
+    args = examples.fourier_impact_oscillator_args(a, b)
+    sol = gj.simulate(
+        FOURIER, jnp.zeros(2), 0.0, jnp.inf, args, max_impacts=num_times, adjoint=adjoint, **TOL
+    )
+    return jnp.sum((sol.impact_times - observed) ** 2)
+
+
+def fourier_profiles(harmonics):
+    """A true profile (decaying random harmonics on top of the unit cosine) and a start."""
+    rng = np.random.default_rng(0)
+    decay = 0.3 / np.arange(1, harmonics + 1) ** 2
+    true = np.concatenate([[1.0] + [0.0] * (harmonics - 1), [0.0] * harmonics])
+    true = true + np.concatenate([decay, decay]) * rng.standard_normal(2 * harmonics)
+    start = np.concatenate([[1.0] + [0.0] * (harmonics - 1), [0.0] * harmonics])
+    return true, start
+
+
+def section_many(harmonics, num_times, budget_s, max_repeats):
+    true, start = fourier_profiles(harmonics)
+    args = examples.fourier_impact_oscillator_args(true[:harmonics], true[harmonics:])
+    observed = gj.simulate(
+        FOURIER, jnp.zeros(2), 0.0, jnp.inf, args, max_impacts=num_times, **TOL
+    ).impact_times
+    c = jnp.asarray(start)
+    rca = diffrax.RecursiveCheckpointAdjoint()
+    fns = {
+        "primal": lambda c, o: fourier_loss(c, o, None, harmonics, num_times),
+        "grad_rca": jax.grad(lambda c, o: fourier_loss(c, o, rca, harmonics, num_times)),
+        "jacfwd": jax.jacfwd(lambda c, o: fourier_loss(c, o, None, harmonics, num_times)),
+    }
+    row = {"parameters": 2 * harmonics, "impact_times": num_times}
+    grads = {}
+    for name, fn in fns.items():
+        compiled, compile_s, mem = _compile(fn, c, observed)
+        out, st = _time(compiled, c, observed, budget_s=budget_s, max_repeats=max_repeats)
+        grads[name] = np.asarray(out)
+        row[f"{name}_min_s"], row[f"{name}_median_s"] = st["min_s"], st["median_s"]
+        row[f"{name}_compile_s"], row[f"{name}_temp_bytes"] = compile_s, mem["temp_bytes"]
+        log(
+            f"  many ({2 * harmonics} params): {name} {st['min_s'] * 1e3:.1f} ms "
+            f"(compile {compile_s:.1f} s)"
+        )
+    row["grad_over_primal"] = row["grad_rca_min_s"] / row["primal_min_s"]
+    row["jacfwd_over_primal"] = row["jacfwd_min_s"] / row["primal_min_s"]
+    row["forward_over_reverse"] = row["jacfwd_min_s"] / row["grad_rca_min_s"]
+    ref = grads["jacfwd"]
+    row["grad_vs_jacfwd_rel"] = float(np.max(np.abs(grads["grad_rca"] - ref)) / np.max(np.abs(ref)))
+    return row
+
+
+def _write_csv(path, rows):
+    with open(path, "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+
+
+def _markdown(data):
+    lines = [f"Gradient benchmark ({data['mode']}); {SHARED_MACHINE_NOTE}.", ""]
+    lines += ["**Cost over the primal run** (min times), forced impact oscillator, 7 inputs:", ""]
+    sizes = sorted({r["target_impacts"] for r in data["impacts"]})
+    lines.append("| mode | temp memory | " + " | ".join(f"{n} impacts" for n in sizes) + " |")
+    lines.append("|---|---|" + "---|" * len(sizes))
+    memory = {m["mode"]: m["temp_bytes"] for m in data["memory"]}
+    for mode in dict.fromkeys(r["mode"] for r in data["impacts"]):
+        cells = []
+        for n in sizes:
+            r = next(r for r in data["impacts"] if r["mode"] == mode and r["target_impacts"] == n)
+            cells.append(
+                f"{r['min_s'] * 1e3:.1f} ms" if mode == "primal" else f"{r['ratio_to_primal']:.2f}×"
+            )
+        lines.append(f"| {mode} | {memory[mode] / 2**20:.1f} MiB | " + " | ".join(cells) + " |")
+    lines += [
+        "",
+        f"grad (every checkpoint count) vs jacfwd at 10 impacts: max relative "
+        f"difference {data['agreement']:.1e}.",
+        "",
+    ]
+    lines += [
+        "**DirectAdjoint** (bounded loop, max_steps = 1.5× the steps needed):",
+        "",
+        "| impacts | steps | grad/primal | temp memory |",
+        "|---|---|---|---|",
+    ]
+    for r in data["direct"]:
+        lines.append(
+            f"| {r['target_impacts']} | {r['steps']} | {r['ratio_to_primal']:.2f}× | "
+            f"{r['grad_direct_temp_bytes'] / 2**20:.1f} MiB |"
+        )
+    lines += [
+        "",
+        "**Many parameters**: Fourier forcing, loss over the first impact times:",
+        "",
+        "| parameters | impact times | primal | grad (reverse) | jacfwd (forward) | "
+        "forward / reverse | grad vs jacfwd |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for m in data["many"]:
+        lines.append(
+            f"| {m['parameters']} | {m['impact_times']} | {m['primal_min_s'] * 1e3:.1f} ms | "
+            f"{m['grad_rca_min_s'] * 1e3:.1f} ms ({m['grad_over_primal']:.1f}×) | "
+            f"{m['jacfwd_min_s'] * 1e3:.1f} ms ({m['jacfwd_over_primal']:.1f}×) | "
+            f"**{m['forward_over_reverse']:.1f}×** | {m['grad_vs_jacfwd_rel']:.1e} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--quick", action="store_true")
+    parser.add_argument(
+        "--out", default=os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
+    )
+    ns = parser.parse_args(argv)
+    quick = ns.quick
+    os.makedirs(ns.out, exist_ok=True)
+    checkpoints = (30, None) if quick else (10, 30, 100, None, 1000, 4000)
+    budget, repeats = (1.0, 3) if quick else (3.0, 7)
+    t_start = time.perf_counter()
+    log("impacts: gradient vs primal")
+    impacts, memory, programs = section_impacts((10, 100, 1000), checkpoints, budget, repeats)
+    log("agreement of the modes")
+    agreement = section_agreement(programs)
+    log("direct adjoint")
+    direct = section_direct((10,) if quick else (10, 100), budget, repeats)
+    log("many parameters")
+    many = [section_many(h, 20, budget, repeats) for h in ((50,) if quick else (50, 200))]
+    data = {
+        "mode": "quick" if quick else "full",
+        "tolerances": TOL,
+        "impacts": impacts,
+        "memory": memory,
+        "agreement": agreement,
+        "direct": direct,
+        "many": many,
+        "machine": machine(),
+        "versions": versions(),
+        "note": SHARED_MACHINE_NOTE,
+        "wall_s": time.perf_counter() - t_start,
+    }
+    with open(os.path.join(ns.out, "gradients.json"), "w") as f:
+        json.dump(data, f, indent=1)
+    _write_csv(os.path.join(ns.out, "gradients_impacts.csv"), impacts)
+    _write_csv(os.path.join(ns.out, "gradients_direct.csv"), direct)
+    _write_csv(os.path.join(ns.out, "gradients_many.csv"), many)
+    table = _markdown(data)
+    with open(os.path.join(ns.out, "gradients.md"), "w") as f:
+        f.write(table)
+    print(table)
+    log(f"done in {data['wall_s']:.0f} s; results in {ns.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

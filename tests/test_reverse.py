@@ -1,0 +1,418 @@
+"""Reverse-mode differentiation through impacts: `jax.grad` equals `jax.jacfwd` and the truth.
+
+Every reverse-mode result (`adjoint=diffrax.RecursiveCheckpointAdjoint()` or
+`diffrax.DirectAdjoint()`) is compared three ways: with forward mode (the default adjoint),
+with a closed form (the bouncing ball's impact times and state, the saltation matrix of a
+wall), and with central finite differences.
+
+**Tolerances**, for runs at rtol = atol = TOL = 1e-12:
+
+- reverse vs forward: both are exact derivatives of the *same* discrete scheme (same steps,
+  same event times, the event time's tangent from the same Newton step), so they differ by
+  the round-off of evaluating one chain rule in two orders: a few hundred ulps of the
+  largest term, far below TOL. We allow `MODES = TOL` (relative to the largest entry).
+- vs a closed form: the discrete scheme's derivative approximates the true derivative to
+  the local tolerance TOL per step, amplified by the condition of the map (the impact
+  factor 1/|∇Φ·f| and the flow Jacobian's norm, both O(1)..O(10) here) and accumulated
+  over ~10² steps: `EXACT = 100 · TOL` (relative), and `EXACT / |v⁻|` where the impact
+  speed v⁻ is small (grazing-near).
+- vs central differences with step h: truncation h² |x'''|/6 plus the solver's
+  non-smooth error TOL/h. With h = 1e-4 and |x'''| = O(10) both are ~1e-8: `FD = 1e-6`
+  leaves a factor of ~30 for the O(10) constants.
+
+Compile time dominates: each (scene, mode) pair is compiled once at module level and
+reused by every test that needs it.
+"""
+
+import math
+
+import diffrax
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import grazejax as gj
+from grazejax import examples as ex
+
+from .helpers import central_differences, dip_start, free_fall_scene
+
+TOL = 1e-12
+TIGHT = dict(rtol=TOL, atol=TOL)
+MODES = TOL
+EXACT = 100 * TOL
+FD, FD_STEP = 1e-6, 1e-4
+
+RCA = diffrax.RecursiveCheckpointAdjoint()
+DIRECT = diffrax.DirectAdjoint()
+# DirectAdjoint stores every step of a loop bounded by max_steps: keep the bound near
+# what the runs below need (a few hundred steps).
+DIRECT_STEPS = 4000
+
+
+def assert_close(actual, expected, rtol):
+    """Relative to the largest entry of `expected` (entries near zero are not relative)."""
+    actual, expected = np.asarray(actual), np.asarray(expected)
+    scale = np.max(np.abs(expected))
+    assert np.all(np.isfinite(actual)), actual
+    err = np.max(np.abs(actual - expected)) / scale
+    assert err <= rtol, (err, rtol, actual, expected)
+
+
+# ----------------------------------------------------------- bouncing ball --------------
+
+BALL = ex.bouncing_ball()
+BALL_T = 2.0  # between the third (1.75) and fourth (2.21) impact from (1, 0), e = 0.8
+BALL_P = np.array([1.0, 0.0, 9.81, 0.8])  # (h, v0, g, e)
+
+
+def ball_loss_exact(p):
+    """x(T)[0] + x(T)[1]/2 + t_3 in closed form (three impacts before T)."""
+    h, v0, g, e = p[0], p[1], p[2], p[3]
+    w = jnp.sqrt(v0 * v0 + 2 * g * h)
+    t3 = (v0 + w) / g + 2 * w * (e + e * e) / g
+    s = BALL_T - t3
+    x = e**3 * w * s - g * s * s / 2
+    v = e**3 * w - g * s
+    return x + v / 2 + t3
+
+
+def ball_loss(p, adjoint, max_steps=100_000):
+    args = {"g": p[2], "e": p[3]}
+    sol = gj.simulate(
+        BALL, p[:2], 0.0, BALL_T, args, adjoint=adjoint, max_steps=max_steps, max_impacts=8, **TIGHT
+    )
+    return sol.x_final[0] + sol.x_final[1] / 2 + sol.impact_times[2]
+
+
+ball_primal = jax.jit(lambda p: ball_loss(p, None))
+ball_fwd = jax.jit(jax.jacfwd(lambda p: ball_loss(p, None)))
+ball_rca = jax.jit(jax.grad(lambda p: ball_loss(p, RCA)))
+
+
+def test_ball_grad_equals_jacfwd_closed_form_and_differences():
+    p = jnp.asarray(BALL_P)
+    exact = jax.grad(ball_loss_exact)(p)
+    reverse, forward = ball_rca(p), ball_fwd(p)
+    np.testing.assert_allclose(ball_primal(p), ball_loss_exact(p), rtol=EXACT)
+    assert_close(reverse, forward, MODES)
+    assert_close(reverse, exact, EXACT)
+    assert_close(reverse, central_differences(ball_primal, BALL_P, FD_STEP), FD)
+
+
+def test_ball_direct_adjoint_grad_and_jacfwd():
+    """DirectAdjoint supports both modes, with the same values."""
+    p = jnp.asarray(BALL_P)
+    loss = lambda q: ball_loss(q, DIRECT, DIRECT_STEPS)  # noqa: E731
+    reverse = jax.jit(jax.grad(loss))(p)
+    forward = jax.jit(jax.jacfwd(loss))(p)
+    assert_close(reverse, ball_fwd(p), MODES)
+    assert_close(forward, ball_fwd(p), MODES)
+
+
+def test_ball_grad_under_vmap_and_jit():
+    """Lanes with different impact times (three impacts before T in each): each lane's
+    gradient is its own."""
+    ps = jnp.asarray([BALL_P, [1.2, 0.3, 9.81, 0.8], [0.9, -0.2, 9.5, 0.8]])
+    batched = jax.jit(jax.vmap(jax.grad(lambda p: ball_loss(p, RCA))))(ps)
+    for lane, p in enumerate(ps):
+        assert_close(batched[lane], jax.grad(ball_loss_exact)(p), EXACT)
+    assert_close(batched[0], ball_rca(ps[0]), MODES)
+
+
+# ------------------------------------------------------------- wall saltation -------------
+
+B, R = 0.5, 0.8  # rotation about (B, 0); wall Φ = x1 with restitution R
+WALL_X0, WALL_T = np.array([1.0, -1.0]), 2.5  # one impact, at t ≈ 0.93
+
+
+def _wall_scene():
+    def vector_field(t, x, args):
+        return jnp.stack([x[1], args["b"] - x[0]])
+
+    wall = gj.Surface(
+        phi=lambda t, x, args: x[0],
+        jump=lambda t, x, args: x.at[1].set(-args["r"] * x[1]),
+        inverse_jump=lambda t, x, args: x.at[1].set(-x[1] / args["r"]),
+    )
+    return gj.Scene(vector_field, [wall])
+
+
+WALL = _wall_scene()
+WALL_ARGS = {"b": jnp.asarray(B), "r": jnp.asarray(R)}
+
+
+def rotation(s):
+    return np.array([[math.cos(s), math.sin(s)], [-math.sin(s), math.cos(s)]])
+
+
+def wall_jacobian_exact(x0, T):
+    """∂x(T)/∂x0 = R(T − t1) S R(t1), S = [[−r, 0], [(a⁺ + r a⁻)/v⁻, −r]], a± = b at x1 = 0.
+
+    x1(t) − b = ρ cos(t − φ); the impact is the decreasing root of x1 = 0.
+    """
+    rho = math.hypot(x0[0] - B, x0[1])
+    phi = math.atan2(x0[1], x0[0] - B)
+    t1 = phi + math.acos(-B / rho)
+    v_minus = -rho * math.sin(t1 - phi)
+    S = np.array([[-R, 0.0], [(B + R * B) / v_minus, -R]])
+    return rotation(T - t1) @ S @ rotation(t1)
+
+
+def wall_final(x0, adjoint, max_steps=100_000):
+    sol = gj.simulate(
+        WALL,
+        x0,
+        0.0,
+        WALL_T,
+        WALL_ARGS,
+        adjoint=adjoint,
+        max_steps=max_steps,
+        max_impacts=4,
+        **TIGHT,
+    )
+    return sol.x_final
+
+
+def test_wall_saltation_reverse_forward_exact_differences():
+    x0 = jnp.asarray(WALL_X0)
+    exact = wall_jacobian_exact(WALL_X0, WALL_T)
+    reverse = jax.jit(jax.jacrev(lambda x: wall_final(x, RCA)))(x0)
+    forward = jax.jit(jax.jacfwd(lambda x: wall_final(x, None)))(x0)
+    assert_close(reverse, forward, MODES)
+    assert_close(reverse, exact, EXACT)
+    primal = jax.jit(lambda x: wall_final(x, None))
+    assert_close(reverse, central_differences(primal, WALL_X0, FD_STEP), FD)
+
+
+@pytest.mark.slow  # a bounded-loop compile of its own
+def test_wall_saltation_direct_adjoint():
+    x0 = jnp.asarray(WALL_X0)
+    run = lambda x: wall_final(x, DIRECT, DIRECT_STEPS)  # noqa: E731
+    exact = wall_jacobian_exact(WALL_X0, WALL_T)
+    assert_close(jax.jit(jax.jacrev(run))(x0), exact, EXACT)
+    assert_close(jax.jit(jax.jacfwd(run))(x0), exact, EXACT)
+
+
+# ------------------------------------------------------------ forced oscillator -----------
+
+OSC = ex.impact_oscillator()
+OSC_NAMES = ("zeta", "A", "omega", "sigma", "r")
+OSC_P = np.array([0.05, 1.0, 1.5, 0.2, 0.8])
+OSC_T = 12.0
+
+
+def osc_loss(p, adjoint, max_steps=100_000):
+    """Sum of the first three impact times plus the final state, as a function of args."""
+    args = dict(zip(OSC_NAMES, p, strict=True))
+    sol = gj.simulate(
+        OSC,
+        jnp.zeros(2),
+        0.0,
+        OSC_T,
+        args,
+        adjoint=adjoint,
+        max_steps=max_steps,
+        max_impacts=16,
+        **TIGHT,
+    )
+    return jnp.sum(sol.impact_times[:3]) + sol.x_final[0] + sol.x_final[1]
+
+
+def test_forced_oscillator_grad_equals_jacfwd_and_differences():
+    p = jnp.asarray(OSC_P)
+    primal = jax.jit(lambda q: osc_loss(q, None))
+    reverse = jax.jit(jax.grad(lambda q: osc_loss(q, RCA)))(p)
+    forward = jax.jit(jax.jacfwd(lambda q: osc_loss(q, None)))(p)
+    assert_close(reverse, forward, MODES)
+    assert_close(reverse, central_differences(primal, OSC_P, FD_STEP), FD)
+
+
+# -------------------------------------------------------------- harder runs ---------------
+
+
+@pytest.mark.slow  # three compiles (~35 s on two shared cores)
+def test_grazing_near_impact():
+    """A parabola dipping δ = 1e-6 below the floor: t_hit = 2h/(−v0 + √(2aδ)), with an impact
+    speed √(2aδ) ≈ 1.4e-3, so ∂t_hit/∂x0 ~ 1/|v⁻| ≈ 700: the tolerance scales with it."""
+    a, v0, delta = 1.0, -1.0, 1e-6
+    scene = free_fall_scene(restitution=0.8)
+    x0, t_hit, v_minus = dip_start(delta, a, v0)
+
+    def first_time(x, adjoint):
+        sol = gj.simulate(scene, x, 0.0, 2.5, {"a": a}, adjoint=adjoint, max_impacts=4, **TIGHT)
+        return sol.impact_times[0]
+
+    def exact(x):
+        return 2 * x[0] / (-x[1] + jnp.sqrt(x[1] ** 2 - 2 * a * x[0]))
+
+    x = jnp.asarray(x0)
+    np.testing.assert_allclose(first_time(x, None), t_hit, rtol=EXACT / abs(v_minus))
+    reverse = jax.jit(jax.grad(lambda y: first_time(y, RCA)))(x)
+    forward = jax.jit(jax.jacfwd(lambda y: first_time(y, None)))(x)
+    assert_close(reverse, forward, MODES / abs(v_minus))
+    assert_close(reverse, jax.grad(exact)(x), EXACT / abs(v_minus))
+
+
+@pytest.mark.slow  # two compiles of the sticking loop
+def test_zeno_sticking_run():
+    """A ball that comes to rest (zeno="stick"): the first impact times keep their closed-form
+    gradients, and reverse equals forward through the sliding phase."""
+    T = 6.0  # accumulation at ≈ 4.06 from (1, 0), e = 0.8
+
+    def loss(p, adjoint):
+        sol = gj.simulate(
+            BALL,
+            p[:2],
+            0.0,
+            T,
+            {"g": p[2], "e": p[3]},
+            adjoint=adjoint,
+            zeno="stick",
+            max_impacts=200,
+            **TIGHT,
+        )
+        return jnp.sum(sol.impact_times[:5]) + sol.x_final[0], sol
+
+    def exact(p):
+        h, v0, g, e = p[0], p[1], p[2], p[3]
+        w = jnp.sqrt(v0 * v0 + 2 * g * h)
+        flights = jnp.cumsum(jnp.asarray([0.0] + [2 * w * e**k / g for k in range(1, 5)]))
+        return jnp.sum((v0 + w) / g + flights)
+
+    p = jnp.asarray(BALL_P)
+    (value, sol) = loss(p, None)
+    kinds = np.asarray(sol.impact_kind[: int(sol.num_impacts)])
+    assert int(gj.ImpactKind.STICK) in kinds, kinds
+    np.testing.assert_allclose(value, exact(p), rtol=EXACT)
+    reverse = jax.jit(jax.grad(lambda q: loss(q, RCA)[0]))(p)
+    forward = jax.jit(jax.jacfwd(lambda q: loss(q, None)[0]))(p)
+    assert_close(reverse, forward, MODES)
+    assert_close(reverse, jax.grad(exact)(p), EXACT)
+
+
+@pytest.mark.slow  # two compiles of the backward loop (~45 s on two shared cores)
+def test_backward_time_inverts_the_forward_jacobian():
+    """t1 < t0: from x(T) back to t = 0 through the image surface. The Jacobian is the
+    inverse of the forward one (closed form, through three impacts)."""
+
+    def forward_map(x0):
+        h, v0 = x0[0], x0[1]
+        g, e = 9.81, 0.8
+        w = jnp.sqrt(v0 * v0 + 2 * g * h)
+        s = BALL_T - (v0 + w) / g - 2 * w * (e + e * e) / g
+        return jnp.stack([e**3 * w * s - g * s * s / 2, e**3 * w - g * s])
+
+    x0 = jnp.asarray(BALL_P[:2])
+    xT = forward_map(x0)
+    args = {"g": jnp.asarray(9.81), "e": jnp.asarray(0.8)}
+
+    def back(y, adjoint):
+        return gj.simulate(
+            BALL, y, BALL_T, 0.0, args, adjoint=adjoint, max_impacts=8, **TIGHT
+        ).x_final
+
+    exact = np.linalg.inv(np.asarray(jax.jacfwd(forward_map)(x0)))
+    reverse = jax.jit(jax.jacrev(lambda y: back(y, RCA)))(xT)
+    forward = jax.jit(jax.jacfwd(lambda y: back(y, None)))(xT)
+    assert_close(reverse, forward, MODES)
+    assert_close(reverse, exact, EXACT)
+
+
+# ------------------------------------------------------------- equilibrium ----------------
+
+SPRING = gj.Scene(lambda t, x, args: jnp.stack([x[1], -x[0]]), [])
+
+
+def test_equilibrium_jacobian_is_identity_in_both_modes():
+    """x'' = −x over 2π from the equilibrium: ∂x(2π)/∂x0 = R(2π) = I. The step size must not
+    leak state derivatives where the error norm is zero (once [[−16, −3.2], [3.2, −16]])."""
+
+    def final(x, adjoint):
+        return gj.simulate(SPRING, x, 0.0, 2 * math.pi, adjoint=adjoint, **TIGHT).x_final
+
+    x0 = jnp.zeros(2)
+    # The flow is linear: its Jacobian is R(2π) = I up to the accumulated local error.
+    assert_close(jax.jit(jax.jacfwd(lambda x: final(x, None)))(x0), np.eye(2), EXACT)
+    assert_close(jax.jit(jax.jacrev(lambda x: final(x, RCA)))(x0), np.eye(2), EXACT)
+
+
+def test_periodic_orbit_at_an_equilibrium_has_unit_multipliers():
+    orbit = gj.find_periodic_orbit(SPRING, [0.0, 0.0], 2 * math.pi, fixed_period=True)
+    np.testing.assert_allclose(np.asarray(orbit.multipliers), [1.0, 1.0], atol=EXACT)
+
+
+# ----------------------------------------------------------------- errors -----------------
+
+
+def test_default_adjoint_grad_names_the_fix():
+    loss = lambda x: gj.simulate(SPRING, x, 0.0, 1.0).x_final[0]  # noqa: E731
+    with pytest.raises(RuntimeError, match=r"adjoint=diffrax\.RecursiveCheckpointAdjoint\(\)"):
+        jax.grad(loss)(jnp.array([1.0, 0.0]))
+
+
+def test_unsupported_adjoint_is_a_value_error():
+    with pytest.raises(ValueError, match="BacksolveAdjoint"):
+        gj.simulate(SPRING, [1.0, 0.0], 0.0, 1.0, adjoint=diffrax.BacksolveAdjoint())
+
+
+# ------------------------------------------------- the analysis functions' adjoint ---------
+
+
+def third_impact_time(sol):
+    return sol.impact_times[2]
+
+
+def test_scalar_gradient_and_flow_jacobian_in_reverse_mode():
+    """With a reverse-only adjoint both must differentiate backward (jacfwd would raise):
+    ∂t_3/∂e = 2w(1 + 2e)/g, and the wall's Jacobian is R(T − t1) S R(t1)."""
+    h, g, e = 1.0, 9.81, 0.8
+    args = {"g": jnp.asarray(g), "e": jnp.asarray(e)}
+    r = gj.scalar_gradient(
+        third_impact_time, BALL, [h, 0.0], 0.0, 2.0, args, wrt="args", adjoint=RCA, **TIGHT
+    )
+    assert int(r.status) == gj.DerivativeStatus.OK
+    w = math.sqrt(2 * g * h)
+    np.testing.assert_allclose(r.grad["e"], 2 * w * (1 + 2 * e) / g, rtol=EXACT)
+    j = gj.flow_jacobian(WALL, WALL_X0, 0.0, WALL_T, WALL_ARGS, adjoint=RCA, **TIGHT)
+    assert int(j.status) == gj.DerivativeStatus.OK
+    assert_close(j.jacobian, wall_jacobian_exact(WALL_X0, WALL_T), EXACT)
+
+
+def test_sweep_checks_the_adjoint_and_runs_the_primal():
+    x0s = np.array([[1.0, 0.0], [0.7, 0.5]])
+    args = {"g": 9.81, "e": 0.8}
+    plain = gj.sweep(BALL, x0s, 0.0, 2.0, args, progress=False, max_impacts=8)
+    with_adjoint = gj.sweep(BALL, x0s, 0.0, 2.0, args, progress=False, max_impacts=8, adjoint=RCA)
+    np.testing.assert_array_equal(with_adjoint.x_final, plain.x_final)
+    with pytest.raises(ValueError, match="BacksolveAdjoint"):
+        gj.sweep(BALL, x0s, 0.0, 2.0, args, progress=False, adjoint=diffrax.BacksolveAdjoint())
+
+
+@pytest.mark.slow  # the period map compiled in a bounded loop, then transposed
+def test_periodic_orbit_grad_with_direct_adjoint():
+    """The forced oscillator's non-impacting orbit (stop far away) is x_p(0) = (a, bω), with
+    a = A(1 − ω²)/D: ∂a/∂A = (1 − ω²)/D, by jax.grad through Newton's implicit adjoint."""
+    base = ex.impact_oscillator_args(sigma=5.0)
+    period = 2 * math.pi / float(base["omega"])
+
+    def start(A, adjoint):
+        orbit = gj.find_periodic_orbit(
+            OSC,
+            [0.8, 0.0],
+            period,
+            dict(base, A=A),
+            fixed_period=True,
+            start_at_impact=False,
+            adjoint=adjoint,
+            rtol=TOL,
+            atol=TOL,
+        )
+        return orbit.x0[0]
+
+    w, z = float(base["omega"]), float(base["zeta"])
+    D = (1 - w * w) ** 2 + (2 * z * w) ** 2
+    grad = jax.grad(lambda A: start(A, DIRECT))(jnp.asarray(1.0))
+    np.testing.assert_allclose(grad, (1 - w * w) / D, rtol=EXACT)
+    with pytest.raises(ValueError, match="DirectAdjoint"):
+        start(jnp.asarray(1.0), RCA)
