@@ -2,7 +2,7 @@
 
 diffrax locates events with an unbracketed Newton iteration started at the step's end
 (`_integrate.py`); on a high-order interpolant that can leave the step or fail to converge
-(one cause of the `Dopri8` event errors noted in DESIGN.md §4). Every root we look for is
+(one cause of the `Dopri8` event errors noted in docs/design.md, *Diffrax traps*). Every root we look for is
 already bracketed by a sign change inside one step, so a bracketed method is both safe and
 fast: the Illinois variant of regula falsi converges superlinearly and never leaves the
 bracket.

@@ -1,4 +1,4 @@
-"""Layer 2: the event semantics of DESIGN.md §2, one behaviour per test."""
+"""Layer 2: the event semantics of docs/semantics.md, one behaviour per test."""
 
 import math
 
