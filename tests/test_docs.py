@@ -13,7 +13,6 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
-DOCUMENTS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
 # A fence may be indented (a block inside a list item): the closing fence has the same indent.
 _BLOCK = re.compile(r"^(?P<indent>[ \t]*)```python[ \t]*\n(?P<code>.*?)^(?P=indent)```", re.M | re.S)
 
@@ -32,11 +31,21 @@ def test_blocks_are_found():
     assert python_blocks(sample) == [(2, "a = 1\n"), (6, "b = a + 1\n")]
 
 
+def _documents_with_code():
+    paths = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+    return [p for p in paths if python_blocks(p.read_text(encoding="utf-8"))]
+
+
+DOCUMENTS = _documents_with_code()
+
+
+def test_the_readme_and_the_getting_started_page_have_code():
+    assert {"README.md", "index.md"} <= {p.name for p in DOCUMENTS}
+
+
 @pytest.mark.parametrize("path", DOCUMENTS, ids=lambda p: p.relative_to(ROOT).as_posix())
 def test_python_blocks_run(path, tmp_path, monkeypatch):
     blocks = python_blocks(path.read_text(encoding="utf-8"))
-    if not blocks:
-        pytest.skip(f"{path.name} has no python blocks")
     monkeypatch.chdir(tmp_path)
     namespace = {"__name__": f"docs_{path.stem}"}
     for line, code in blocks:
