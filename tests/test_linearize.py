@@ -30,7 +30,7 @@ from grazejax._linearize import (
     w_map,
 )
 
-from .helpers import free_fall_scene
+from .helpers import central_differences, free_fall_scene
 
 TIGHT = dict(rtol=1e-12, atol=1e-12)
 FREE_FALL = free_fall_scene(restitution=0.8)
@@ -46,15 +46,6 @@ LOOKBACK = 0.5  # one value everywhere: w_map compiles once
 def shift(s):
     """Flow Jacobian of free fall over a time s (exact)."""
     return np.array([[1.0, s], [0.0, 1.0]])
-
-
-def central_differences(fn, x, step):
-    x = np.asarray(x, float)
-    cols = [
-        (np.asarray(fn(x + step * e)) - np.asarray(fn(x - step * e))) / (2 * step)
-        for e in np.eye(len(x))
-    ]
-    return np.stack(cols, axis=-1)
 
 
 # ------------------------------------------------------------- saltation ------------
