@@ -204,7 +204,8 @@ def sweep(
         a = jax.tree.map(lambda leaf, b: np.asarray(leaf)[index] if b else leaf, args, flags)
         return x, a
 
-    run_chunk = _compiled_chunk(scene, t0, t1, flags, x0_batched, devices, width, simulate_kwargs)
+    run_chunk = _compiled_chunk(scene, t0, t1, flags, x0_batched, devices, width, simulate_kwargs,
+                                progress=progress)
 
     bar = None
     if progress:
@@ -272,12 +273,15 @@ def _to_host(leaf) -> np.ndarray:
     return np.asarray(leaf)
 
 
-def _compiled_chunk(scene, t0, t1, flags, x0_batched, devices, width, simulate_kwargs):
+def _compiled_chunk(scene, t0, t1, flags, x0_batched, devices, width, simulate_kwargs,
+                    progress=False):
     """The jitted (and sharded) chunk runner, compiled once per configuration.
 
     Numbers (x0s, args, t0, t1, saveat) are arguments; structure (scene, which leaves are
     batched, solver and options, devices, pool width) is the cache key, so repeated sweeps
     over new values reuse the compiled program instead of recompiling a fresh closure.
+    `progress` compiles in the pool's progress reports (one host callback per refill), so
+    that sweeps without a bar (and the benchmarks) run without them.
     """
     options = dict(simulate_kwargs)
     saveat = options.pop("saveat", None)
@@ -286,15 +290,16 @@ def _compiled_chunk(scene, t0, t1, flags, x0_batched, devices, width, simulate_k
     is_none = lambda v: v is None  # noqa: E731
     key = (scene, x0_batched, jax.tree.structure(in_axes_args, is_leaf=is_none),
            tuple(jax.tree.leaves(in_axes_args, is_leaf=is_none)),
-           tuple(sorted(options.items())), tuple(devices), direction, width)
+           tuple(sorted(options.items())), tuple(devices), direction, width, progress)
     try:
         hash(key)
     except TypeError:  # unhashable option values: compile without caching
-        build = _build_chunk(scene, in_axes_args, x0_batched, devices, options, direction, width)
+        build = _build_chunk(scene, in_axes_args, x0_batched, devices, options, direction, width,
+                             progress)
     else:
         if key not in _CHUNK_CACHE:
             _CHUNK_CACHE[key] = _build_chunk(
-                scene, in_axes_args, x0_batched, devices, options, direction, width
+                scene, in_axes_args, x0_batched, devices, options, direction, width, progress
             )
         build = _CHUNK_CACHE[key]
     return build(t0, t1, saveat)
@@ -303,7 +308,7 @@ def _compiled_chunk(scene, t0, t1, flags, x0_batched, devices, width, simulate_k
 _CHUNK_CACHE: dict = {}
 
 
-def _build_chunk(scene, in_axes_args, x0_batched, devices, options, direction, width):
+def _build_chunk(scene, in_axes_args, x0_batched, devices, options, direction, width, progress):
     x_axis = 0 if x0_batched else None
     is_none = lambda v: v is None  # noqa: E731
 
@@ -337,7 +342,7 @@ def _build_chunk(scene, in_axes_args, x0_batched, devices, options, direction, w
             )
             x0s = x0s.astype(checked.x0.dtype)  # as simulate's validate_inputs does
             return run_pool(program, x0s, a, (x_axis, in_axes_args), valid, width,
-                            on_finished=_report_lanes_done)
+                            on_finished=_report_lanes_done if progress else None)
 
     if len(devices) == 1:
         device = devices[0]
