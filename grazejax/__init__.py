@@ -50,6 +50,7 @@ from ._periodic import orbit_contacts as orbit_contacts
 from ._scene import Scene as Scene
 from ._scene import Surface as Surface
 from ._simulate import simulate as simulate
+from ._solution import SimulationError as SimulationError
 from ._solution import Solution as Solution
 from ._status import ImpactKind as ImpactKind
 from ._status import Status as Status

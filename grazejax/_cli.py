@@ -9,6 +9,7 @@ called in-process; the console script (`grazejax = grazejax._cli:main`) passes i
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import subprocess
 import sys
 from pathlib import Path
@@ -109,6 +110,24 @@ def _find_bench_script() -> Path | None:
     return None
 
 
+def _installed(module: str) -> bool:
+    try:
+        return importlib.util.find_spec(module) is not None
+    except ImportError:  # a parent package that fails to import, or an import blocker
+        return False
+
+
+# What the benchmark scripts import beyond grazejax. heyoka computes the ex1dof ground truth
+# (in long double) and is a compared peer; only the smoke subset runs without it.
+BENCH_MODULES = ("scipy", "mpmath", "heyoka")
+BENCH_INSTALL = 'pip install -e ".[bench]"'
+
+
+def _missing_bench_modules(smoke: bool) -> list[str]:
+    needed = [m for m in BENCH_MODULES if not (smoke and m == "heyoka")]
+    return [m for m in needed if not _installed(m)]
+
+
 def _bench(ns) -> int:
     script = _find_bench_script()
     if script is None:
@@ -116,6 +135,16 @@ def _bench(ns) -> int:
             f"grazejax bench: {BENCH_SCRIPT} not found. The benchmarks live in the grazejax "
             "source checkout (they are not installed with the package): clone the repository "
             "and run `grazejax bench` (or `python benchmarks/bench_suite.py`) from its root.",
+            file=sys.stderr,
+        )
+        return 1
+    missing = _missing_bench_modules(ns.smoke)
+    if missing:
+        print(
+            f"grazejax bench: {', '.join(missing)} not installed. The benchmarks compare "
+            "grazejax with SciPy and heyoka (which also computes the ex1dof ground truth): "
+            f"install them with `{BENCH_INSTALL}` from the source checkout, then run "
+            "`grazejax bench` again.",
             file=sys.stderr,
         )
         return 1

@@ -45,7 +45,7 @@ def guarded(g, sa, restart):
     G(sa) = ġ(sa) (its limit). So a flight that leaves the surface upward and comes back
     down within one step is still caught (a plain sign test would see 0 then < 0 and miss
     it), while a flight leaving into Φ < 0 (ġ(sa) < 0, the paper's ex1dof) never
-    re-triggers. DESIGN.md §4 suggests this form.
+    re-triggers. See docs/design.md, *Diffrax traps*.
     """
 
     def G(s):

@@ -4,7 +4,7 @@ Everything here is built on [`grazejax.simulate`][] and JAX's forward-mode autod
 derivative of a flow is written by hand. `simulate` locates each event with one Newton
 step on the time, so `jax.jacfwd` through it carries the implicit-function-theorem
 tangent of every impact time, and the Jacobian of a run with impacts is the product of
-flow Jacobians and saltation matrices (DESIGN.md §4). The closed forms below (the
+flow Jacobians and saltation matrices (docs/design.md, *Derivatives*). The closed forms below (the
 saltation matrix, eqs. dert and derw of the paper) are evaluated from derivatives of f,
 Φ and J *at a point* and from Jacobians of impact-free flows: they are the independent
 checks of the autodiff results, and the tests compare the two.
@@ -506,7 +506,7 @@ def flow_jacobian(
     r"""Jacobian of the final state of a run with impacts, by autodiff through `simulate`.
 
     It is the exact derivative of the discrete scheme, i.e. the product of the flow
-    Jacobians of the flights and the saltation matrices of the impacts (DESIGN.md §4),
+    Jacobians of the flights and the saltation matrices of the impacts (docs/design.md, *Derivatives*),
     to the solver's tolerance. Compiled once per scene and options: pass numbers as
     arrays (`x0`, `t0`, `t1` and `args` are traced).
 
@@ -712,7 +712,7 @@ def classify_point(
     - On the boundary ∂Γ_i: `where_i` changes value within 1e-10·(1 + ‖x‖∞) of x in
       some coordinate direction; pieces without `where` have no boundary.
     - Tangential (γ): |∂Φ/∂t + ∇Φ·f| ≤ `rtol`·(|∇Φ|·|f| + |∂Φ/∂t|) + floor. We follow
-      DESIGN.md §2: a tangential contact is γ even at an interior point (the paper's
+      docs/semantics.md: a tangential contact is γ even at an interior point (the paper's
       Definition grazingpoint puts grazing points on ∂Γ; an interior tangency violates
       its (C4), which [`grazejax.check_conditions`][] reports).
     - On the image Γ̃_i: the same tests for Φ̃_i = Φ_i ∘ J_i⁻¹ (J⁻¹ from `inverse_jump`,

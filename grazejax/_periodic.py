@@ -11,7 +11,7 @@ Paper objects (Akhmet & Kıvılcım, *Discontinuous dynamics with grazing points
 - at a grazing orbit, the (up to 2^l) one-sided variational systems of (A4), impacting or
   not at each grazing contact ([`grazejax.grazing_branches`][]).
 
-**The period map and where the period ends.** Solutions are left-continuous (DESIGN.md §2).
+**The period map and where the period ends.** Solutions are left-continuous (docs/semantics.md).
 If x0 is away from the orbit's impacts the period map is the time-T map
 P(x0, T) = x(t0 + T; t0, x0) of [`grazejax.simulate`][]. The paper starts its cycles *at*
 an impact (x1 = 0 in ex1dof and smalldisc). Then x0 is read as the post-impact state
@@ -839,7 +839,7 @@ def floquet_multipliers(scene: Scene, orbit: Orbit, args=None, *, solver=None,
     Jacobians Φ_i from just after impact i−1 to impact i (`jax.jacfwd` through
     [`grazejax.simulate`][]), the closed-form saltation matrices S_i, and the last flight;
     U = Φ_last S_k Φ_k ⋯ S_1 Φ_1. The multipliers are the eigenvalues of that product by a
-    periodic-Schur sweep ([`grazejax.product_eigenvalues`][]), which keeps tiny
+    periodic-Schur sweep (`product_eigenvalues`), which keeps tiny
     multipliers (near grazing, det S_i ∝ v → 0) that the eigenvalues of the formed
     monodromy lose to cancellation.
 

@@ -1,6 +1,6 @@
 """A refilling pool of lanes: `sweep`'s answer to the slowest-lane problem.
 
-A vmapped while loop runs until its slowest lane finishes (DESIGN.md §4): a batch that mixes
+A vmapped while loop runs until its slowest lane finishes (docs/design.md, *Batches*): a batch that mixes
 2-impact and 200-impact lanes costs as if every lane had 200. The pool instead runs
 `Program.step` (one solver step, see `_simulate.build_program`) on `width` lane *slots*, and
 whenever enough slots have finished it writes their results into the output rows of their
@@ -50,7 +50,9 @@ def _freeze(carry, mask):
     return eqx.tree_at(lambda c: c.done, carry, carry.done | mask)
 
 
-def run_pool(program, x0s, args, in_axes: tuple[Any, Any], valid, width: int) -> Solution:
+def run_pool(
+    program, x0s, args, in_axes: tuple[Any, Any], valid, width: int, on_finished=None
+) -> Solution:
     """Run every valid lane of `(x0s, args)` through `program` on a refilling pool.
 
     **Arguments:**
@@ -60,6 +62,8 @@ def run_pool(program, x0s, args, in_axes: tuple[Any, Any], valid, width: int) ->
       given by `in_axes = (x0 axis, args axes)` (`0` or `None`, as for `jax.vmap`).
     - `valid`: bool[lanes]; the valid lanes come first (the rest is padding, never run).
     - `width`: number of slots (static).
+    - `on_finished`: optional host function, called (`jax.debug.callback`) with the number
+      of lanes finished at each refill: progress reports.
 
     **Returns:** the lanes' `Solution`s stacked along axis 0 (padding rows are zeros).
     """
@@ -98,6 +102,8 @@ def run_pool(program, x0s, args, in_axes: tuple[Any, Any], valid, width: int) ->
     queue_at = jnp.array(0)  # the next lane to load
 
     def write(out, carry, slot_lane, rows):
+        if on_finished is not None:
+            jax.debug.callback(on_finished, jnp.sum(rows.astype(jnp.int32)))
         index = jnp.where(rows, slot_lane, num_lanes)
         return jax.tree.map(lambda o, v: o.at[index].set(v, mode="drop"), out, finish(carry))
 

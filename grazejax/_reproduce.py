@@ -11,7 +11,7 @@ Conventions of the report:
 - Values printed in the paper are kept under the key `paper` (or said to be "printed in
   the paper"); every other number is computed by this code at run time. Nothing computed
   is typed in by hand.
-- Our readings of ambiguous equations are those of DESIGN.md §3 and `grazejax.examples`.
+- Our readings of ambiguous equations are those of docs/design.md (*The paper's examples*) and `grazejax.examples`.
 - Horizons are chosen to show the approach within a few minutes on two CPU cores. The
   ε = 1e-4 damping of `ex1dof` acts on a time scale 1/(ε(1+μ)²) ≈ 10⁴, so its runs are
   long (up to 10⁵ time units); they run in chunks that restart from the last state
@@ -614,7 +614,7 @@ def fig_orbex2_grazing(out: Path) -> dict:
             "printed_psi": psi,
             "gamma2_speed_ratio_last": float(ratios[-1]) if len(ratios) else None,
             "gamma2_speed_ratio_closed_form": predicted_ratio,
-            "design_md_estimate": "overshoot about 2.5e-7 (DESIGN.md §3: an earlier estimate, "
+            "design_md_estimate": "overshoot about 2.5e-7 (docs/design.md, the paper's examples: an earlier estimate, "
                                   "quoted for comparison, not a paper value)",
         },
         "paper": {

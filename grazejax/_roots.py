@@ -2,7 +2,7 @@
 
 diffrax locates events with an unbracketed Newton iteration started at the step's end
 (`_integrate.py`); on a high-order interpolant that can leave the step or fail to converge
-(one cause of `Dopri8` event errors: docs/design.md, "Traps in Diffrax"). Every root we
+(one cause of `Dopri8` event errors: docs/design.md, *Diffrax traps*). Every root we
 look for is already bracketed by a sign change inside one step, so a bracketed method is
 both safe and fast. We use ITP (Oliveira & Takahashi, ACM TOMS 47(1), 2020): regula falsi,
 truncated towards the midpoint and projected into a shrinking ball around it, so that it

@@ -2,7 +2,7 @@
 
 Everything here is *structure*: Python callables fixed at trace time. Numbers that a user
 may vary (μ, restitution, wall position) belong in `args`, so that changing them never
-recompiles (DESIGN.md §5).
+recompiles (docs/design.md, *Structure and numbers*).
 """
 
 from collections.abc import Sequence
@@ -32,7 +32,7 @@ class Surface(eqx.Module):
       `Status.BAD_JUMP`. Off by default because the paper's examples jump *into* Φ < 0
       on purpose (ex1dof, exnonaxial); turn it on for walls and floors.
 
-    **Event semantics** (DESIGN.md §2): an impact happens when the trajectory *reaches*
+    **Event semantics** (docs/semantics.md): an impact happens when the trajectory *reaches*
     Φ_i = 0 while Φ_i decreases, or touches it tangentially (grazing, γ), at a point where
     `where` holds. An upward crossing passes through; Φ < 0 is allowed. A flight that
     starts on the surface (after a jump, or at x0) never impacts at its start time.

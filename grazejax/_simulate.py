@@ -16,14 +16,15 @@ Design (and why it is not a loop of `diffeqsolve` calls with a `diffrax.Event`):
   then one Newton step s* ← s* − g/ġ corrects the time. The event state therefore has the
   accuracy of the method, whatever its interpolant's order, and the Newton step carries
   the implicit-function-theorem tangent of the event time, so `jax.jacfwd` through the
-  loop gives exactly the saltation-matrix sensitivities (DESIGN.md §4).
+  loop gives exactly the saltation-matrix sensitivities (docs/design.md, *Derivatives*).
 - **A local clock.** Steps run in s = time since the last impact; the impact times are
   accumulated in double-double (t_hi, t_lo). Long runs keep full resolution in every
-  flight, and event times do not drift with |t| (DESIGN.md §4, "large t").
+  flight, and event times do not drift with |t| (docs/design.md, *The loop*: a local clock).
 - **Backward time** (`t1 < t0`) is forward time for the reversed field −f(−·), with the
   image surfaces Γ̃_i (gap Φ_i ∘ J_i⁻¹, met from either side) and the inverse jumps.
 """
 
+import functools
 from collections.abc import Callable
 from typing import Any
 
@@ -33,6 +34,7 @@ import equinox.internal as eqxi
 import jax
 import jax.lax as lax
 import jax.numpy as jnp
+import numpy as np
 
 from ._adjoint import REVERSE_HINT, loop_kinds
 from ._events import is_candidate, locate, step_ends
@@ -47,7 +49,7 @@ from ._geometry import (
 )
 from ._roots import bracketed_root, safe_divide
 from ._scene import Scene
-from ._solution import Solution
+from ._solution import ACCEPTED, SimulationError, Solution, failure_message
 from ._status import ImpactKind, Status
 from ._stepping import error_or_zero, loop_controller
 from ._validate import validate_inputs
@@ -160,9 +162,12 @@ def simulate(
     - `max_impacts`: size of the impact log; the run stops (status `MAX_IMPACTS`) right
       after this many impacts.
     - `max_steps`: bound on solver steps (status `MAX_STEPS`).
-    - `saveat`: optional array of times (monotone in the direction of integration)
-      at which to save the state; values are left-continuous (pre-impact at an impact
-      time). Without it no dense output is compiled.
+    - `saveat`: times at which to save the state: a `diffrax.SaveAt(ts=..., t0=..., t1=...)`
+      (read as Diffrax reads it: t0, then ts, then t1) or a plain 1-D array of times,
+      monotone in the direction of integration. Values are left-continuous (pre-impact at
+      an impact time); times after the run stopped (e.g. at `MAX_IMPACTS`) are NaN.
+      `SaveAt(steps=True)`, `dense=True` and `fn=...` are not supported (a `ValueError`
+      says so). Without `saveat` no dense output is compiled.
     - `zeno_rtol`: Zeno accumulation is declared when the last three inter-impact times
       shrink geometrically (ratios equal to 5%) and the predicted time left to
       accumulation is below `zeno_rtol × (t − t0)`; the estimate is in `zeno_time`.
@@ -181,8 +186,11 @@ def simulate(
       (recomputes steps between checkpoints); `diffrax.DirectAdjoint()`: both modes, at the
       memory cost of every step. Event-time tangents are the same in every mode (the
       implicit function theorem at the landing step).
-    - `throw`: raise if the run does not end with `SUCCESS`, `MAX_IMPACTS` or `ZENO`
-      (only outside `vmap`; batches report per-lane status instead).
+    - `throw`: raise if the run does not end with `SUCCESS`, `MAX_IMPACTS` or `ZENO`.
+      Outside `jit`: a [`grazejax.SimulationError`][] that names the status and the fix,
+      with the Solution as `error.solution`. Inside `jit`/`vmap`: a runtime error
+      (`eqx.branched_error_if`) that names the status, without the Solution.
+      ([`grazejax.sweep`][] checks on the host and names the failing lanes.)
 
     **Returns:** a [`grazejax.Solution`][].
 
@@ -202,7 +210,7 @@ def simulate(
     stops, and restarts if the state is again tangential and pushed in). Sliding on two
     surfaces at once is not modelled: the run ends with `Status.ZENO`.
 
-    **Event semantics** (DESIGN.md §2): an impact on Γ_i happens when Φ_i reaches 0 while
+    **Event semantics** (docs/semantics.md): an impact on Γ_i happens when Φ_i reaches 0 while
     decreasing, or touches 0 tangentially, at a point of the closed piece (`where` true to
     within round-off). Upward crossings pass through; Φ < 0 is allowed. A flight starting on
     a surface (after a jump or at x0) does not impact at its start time. Excursions into
@@ -1129,12 +1137,19 @@ def _with_implicit_tolerances(solver, controller):
 
 
 def _throw_if_failed(sol: Solution) -> Solution:
-    ok = (
-        (sol.status == Status.SUCCESS)
-        | (sol.status == Status.MAX_IMPACTS)
-        | (sol.status == Status.ZENO)
-    )
-    x_final = eqx.error_if(
-        sol.x_final, ~ok, "grazejax.simulate did not succeed: see Solution.status"
-    )
+    """`throw=True`: fail loudly if the run did not end with one of `ACCEPTED`.
+
+    Outside `jit` the status is a value: raise a `SimulationError` that names it and
+    carries the Solution. Inside `jit`/`vmap` there is no value to test in Python, so the
+    check is compiled in (`eqx.branched_error_if`): the runtime error names the status
+    (under `vmap`: the highest failing status code of the batch), without the Solution.
+    """
+    status = sol.status
+    if not isinstance(status, jax.core.Tracer):
+        if not np.all(np.isin(np.asarray(status), [int(s) for s in ACCEPTED])):
+            raise SimulationError(sol)
+        return sol
+    ok = functools.reduce(jnp.logical_or, [status == int(s) for s in ACCEPTED])
+    messages = [failure_message(Status(code)) for code in range(len(Status))]
+    x_final = eqx.branched_error_if(sol.x_final, ~ok, status, messages)
     return eqx.tree_at(lambda s: s.x_final, sol, x_final)

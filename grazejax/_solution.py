@@ -1,6 +1,7 @@
 """`Solution`: what one run (or one batch of runs) of `simulate` returns."""
 
 import equinox as eqx
+import jax
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
@@ -53,8 +54,17 @@ class Solution(eqx.Module):
     def succeeded(self) -> Bool[Array, ""]:
         return self.status == Status.SUCCESS
 
-    def summary(self) -> str:
-        """A short human-readable account of an unbatched run (outside jit)."""
+    def summary(self, max_lanes: int = 10) -> str:
+        """A short human-readable account of the run (outside `jit`).
+
+        For a batch (from `jax.vmap` or [`grazejax.sweep`][]): the number of lanes with each
+        status, the ranges of `t_final`, `num_impacts` and `num_steps`, then one line per
+        lane for the first `max_lanes` lanes.
+        """
+        if isinstance(self.status, jax.core.Tracer):
+            raise TypeError("Solution.summary() reads values: call it outside jit/vmap")
+        if np.ndim(self.status) > 0:
+            return _batch_summary(self, max_lanes)
         status = Status(int(self.status))
         k = int(self.num_impacts)
         lines = [
@@ -71,3 +81,84 @@ class Solution(eqx.Module):
         if status == Status.ZENO:
             lines.append(f"estimated accumulation time: {float(self.zeno_time):.15g}")
         return "\n".join(lines)
+
+
+def _batch_summary(sol: Solution, max_lanes: int) -> str:
+    status = np.asarray(sol.status).reshape(-1)
+    t_final = np.asarray(sol.t_final).reshape(-1)
+    impacts = np.asarray(sol.num_impacts).reshape(-1)
+    steps = np.asarray(sol.num_steps).reshape(-1)
+    counts = ", ".join(
+        f"{Status(code).name} {int(np.sum(status == code))}" for code in np.unique(status)
+    )
+    lines = [
+        f"{status.size} lanes: {counts}",
+        f"t_final in [{t_final.min():.6g}, {t_final.max():.6g}]; impacts per lane in "
+        f"[{impacts.min()}, {impacts.max()}]; steps per lane in [{steps.min()}, {steps.max()}]",
+    ]
+    shown = min(status.size, max(0, max_lanes))
+    for i in range(shown):
+        x_final = np.asarray(sol.x_final).reshape(status.size, -1)[i]
+        lines.append(
+            f"  lane {i}: {Status(int(status[i])).name}  t_final = {t_final[i]:.15g}  "
+            f"{impacts[i]} impact(s)  x_final = {x_final}"
+        )
+    if shown < status.size:
+        lines.append(f"  ... {status.size - shown} more lane(s) (summary(max_lanes=...))")
+    return "\n".join(lines)
+
+
+# What to do about each way a run can fail (named by `throw=True` errors).
+_FIXES = {
+    Status.MAX_STEPS: "raise max_steps, or loosen rtol/atol",
+    Status.NONFINITE: "the vector field or a jump returned NaN/inf: check them (and x0, args) "
+    "near x_final",
+    Status.STEP_SIZE_UNDERFLOW: "the flow is stiff or singular near x_final: try an implicit "
+    "solver (diffrax.Kvaerno5) or looser tolerances",
+    Status.BAD_JUMP: "the jump law leaves the state inside its impenetrable surface: check the "
+    "jump, or mark the surface impenetrable=False if Φ < 0 is allowed",
+    Status.BAD_START: "start on the free side Φ >= 0 of every impenetrable surface",
+}
+
+# Statuses that `throw=True` accepts: the run ended the way it was asked to, or at a
+# physical accumulation.
+ACCEPTED = (Status.SUCCESS, Status.MAX_IMPACTS, Status.ZENO)
+
+
+def failure_message(status: Status) -> str:
+    """What `throw=True` says about a run that ended with `status`."""
+    return (
+        f"grazejax.simulate: the run ended with status {status.name} ({status.message}). "
+        f"Fix: {_FIXES.get(status, 'see grazejax.Status')}. "
+        "Pass throw=False to get the Solution and read Solution.status."
+    )
+
+
+class SimulationError(RuntimeError):
+    """Raised by `simulate(..., throw=True)` (and `sweep`) outside `jit` when a run does not
+    end with `SUCCESS`, `MAX_IMPACTS` or `ZENO`.
+
+    **Attributes:**
+
+    - `solution`: the whole [`grazejax.Solution`][] (every lane, for a batch).
+    - `status`: the [`grazejax.Status`][] of the (first) failing run.
+    - `lanes`: for a batch, the indices of the failing lanes; `None` for a single run.
+    """
+
+    def __init__(self, solution: Solution):
+        status = np.asarray(solution.status).reshape(-1)
+        failed = np.flatnonzero(~np.isin(status, [int(s) for s in ACCEPTED]))
+        self.solution = solution
+        self.status = Status(int(status[failed[0]]))
+        self.lanes = failed if np.ndim(solution.status) > 0 else None
+        message = failure_message(self.status)
+        if self.lanes is not None:
+            others = ", ".join(
+                f"{Status(code).name} {int(np.sum(status[failed] == code))}"
+                for code in np.unique(status[failed])
+            )
+            message = (
+                f"{len(failed)} of {status.size} lanes failed ({others}); the first is lane "
+                f"{failed[0]}: " + message + " The failing lanes are in error.lanes."
+            )
+        super().__init__(message + " The Solution is attached as error.solution.")

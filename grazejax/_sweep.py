@@ -11,7 +11,7 @@ lanes needs:
   and every process gets the whole result back; tested with two processes joined over gloo
   on one machine, bit-identical to one process);
 - **the slowest-lane problem**: a vmapped while loop runs until its slowest lane finishes
-  (DESIGN.md §4), so a chunk that mixes 2-impact and 200-impact lanes costs as if all had
+  (docs/design.md, *Batches*), so a chunk that mixes 2-impact and 200-impact lanes costs as if all had
   200. With `balance="refill"` (the default) each device runs its share of a chunk on a pool
   of `pool_size` lane slots (`_pool.py`): whenever an eighth of the slots have finished, their
   results are written out and the next lanes of the queue are loaded into them; at the end
@@ -30,6 +30,7 @@ in different programs (and specialises batch size 1), which can move a result by
 tests.
 """
 
+import contextlib
 import inspect
 from collections.abc import Sequence
 from typing import Any, Literal, NamedTuple
@@ -43,6 +44,7 @@ from ._pool import run_pool
 from ._scene import Scene
 from ._simulate import _throw_if_failed, prepare, simulate
 from ._solution import Solution
+from ._validate import saveat_times
 
 _BALANCES = ("refill", "none")
 # simulate's keyword options and their defaults (the pool builds the loop with `prepare`,
@@ -129,7 +131,8 @@ def sweep(
     - `pool_size`: slots per device for `balance="refill"` (default: 1024, or the chunk's
       share per device if smaller). Wider pools vectorise better; narrower ones waste
       less on the last lanes of a chunk.
-    - `progress`: show a tqdm progress bar across chunks.
+    - `progress`: show a tqdm progress bar of the lanes done (with `balance="refill"` it
+      moves as lanes finish inside a chunk; with `"none"`, chunk by chunk).
     - `**simulate_kwargs`: every keyword option of `simulate` (rtol, atol, solver,
       max_impacts, saveat, ...). `adjoint` is checked and otherwise has no effect: the
       results are NumPy arrays, not differentiable (differentiate a batch with
@@ -180,6 +183,11 @@ def sweep(
                 )
             args_batched = _auto_batched(args, sizes.pop()) if sizes else None
     batch = _batch_size(x0s, args, args_batched)
+    simulate_kwargs = dict(simulate_kwargs)
+    # Checked on the host once every lane is back, so that the error can name the lanes.
+    throw = simulate_kwargs.pop("throw", False)
+    if simulate_kwargs.get("saveat") is not None:  # a diffrax.SaveAt is not a jit argument
+        simulate_kwargs["saveat"] = saveat_times(simulate_kwargs["saveat"], t0, t1)
     if float(t0) == float(t1):
         raise ValueError(f"t0 == t1 == {float(t0)}: nothing to simulate")
     if chunk_size is None:
@@ -205,23 +213,53 @@ def sweep(
         a = jax.tree.map(lambda leaf, b: np.asarray(leaf)[index] if b else leaf, args, flags)
         return x, a
 
-    run_chunk = _compiled_chunk(scene, t0, t1, flags, x0_batched, devices, width, simulate_kwargs)
+    run_chunk = _compiled_chunk(scene, t0, t1, flags, x0_batched, devices, width, simulate_kwargs,
+                                progress=progress)
 
-    starts = range(0, batch, chunk_size)
+    bar = None
     if progress:
         from tqdm.auto import tqdm
 
-        starts = tqdm(starts, total=len(starts), desc="grazejax.sweep", unit="chunk")
+        bar = tqdm(total=batch, desc="grazejax.sweep", unit="lane")
     pieces = []
-    for start in starts:
-        index = np.arange(start, min(start + chunk_size, batch))
-        size = len(index)
-        # Padding repeats the first lane (the pool never runs it; vmap runs it in step).
-        padded = np.concatenate([index, np.full(chunk_size - size, index[0])])
-        x, a = lane_inputs(padded)
-        out = run_chunk(x, a, np.arange(chunk_size) < size)
-        pieces.append(jax.tree.map(lambda leaf, size=size: _to_host(leaf)[:size], out))
-    return jax.tree.map(lambda *leaves: np.concatenate(leaves, axis=0), *pieces)
+    try:
+        for start in range(0, batch, chunk_size):
+            index = np.arange(start, min(start + chunk_size, batch))
+            size = len(index)
+            # Padding repeats the first lane (the pool never runs it; vmap runs it in step).
+            padded = np.concatenate([index, np.full(chunk_size - size, index[0])])
+            x, a = lane_inputs(padded)
+            with _lanes_done_to(bar):
+                out = run_chunk(x, a, np.arange(chunk_size) < size)
+                pieces.append(jax.tree.map(lambda leaf, size=size: _to_host(leaf)[:size], out))
+            if bar is not None:  # exact count (the pool's reports are per refill)
+                bar.n = start + size
+                bar.refresh()
+    finally:
+        if bar is not None:
+            bar.close()
+    result = jax.tree.map(lambda *leaves: np.concatenate(leaves, axis=0), *pieces)
+    return _throw_if_failed(result) if throw else result
+
+
+# The progress bar that the pool's in-program reports (`run_pool(on_finished=...)`) go to.
+# The compiled chunk is cached across sweeps, so its callback cannot hold one sweep's bar.
+_BAR: list = [None]
+
+
+@contextlib.contextmanager
+def _lanes_done_to(bar):
+    _BAR[0] = bar
+    try:
+        yield
+    finally:
+        _BAR[0] = None
+
+
+def _report_lanes_done(count) -> None:
+    bar = _BAR[0]
+    if bar is not None and int(count) > 0:
+        bar.update(int(count))
 
 
 def _put(value, sharding):
@@ -244,12 +282,15 @@ def _to_host(leaf) -> np.ndarray:
     return np.asarray(leaf)
 
 
-def _compiled_chunk(scene, t0, t1, flags, x0_batched, devices, width, simulate_kwargs):
+def _compiled_chunk(scene, t0, t1, flags, x0_batched, devices, width, simulate_kwargs,
+                    progress=False):
     """The jitted (and sharded) chunk runner, compiled once per configuration.
 
     Numbers (x0s, args, t0, t1, saveat) are arguments; structure (scene, which leaves are
     batched, solver and options, devices, pool width) is the cache key, so repeated sweeps
     over new values reuse the compiled program instead of recompiling a fresh closure.
+    `progress` compiles in the pool's progress reports (one host callback per refill), so
+    that sweeps without a bar (and the benchmarks) run without them.
     """
     options = dict(simulate_kwargs)
     saveat = options.pop("saveat", None)
@@ -258,15 +299,16 @@ def _compiled_chunk(scene, t0, t1, flags, x0_batched, devices, width, simulate_k
     is_none = lambda v: v is None  # noqa: E731
     key = (scene, x0_batched, jax.tree.structure(in_axes_args, is_leaf=is_none),
            tuple(jax.tree.leaves(in_axes_args, is_leaf=is_none)),
-           tuple(sorted(options.items())), tuple(devices), direction, width)
+           tuple(sorted(options.items())), tuple(devices), direction, width, progress)
     try:
         hash(key)
     except TypeError:  # unhashable option values: compile without caching
-        build = _build_chunk(scene, in_axes_args, x0_batched, devices, options, direction, width)
+        build = _build_chunk(scene, in_axes_args, x0_batched, devices, options, direction, width,
+                             progress)
     else:
         if key not in _CHUNK_CACHE:
             _CHUNK_CACHE[key] = _build_chunk(
-                scene, in_axes_args, x0_batched, devices, options, direction, width
+                scene, in_axes_args, x0_batched, devices, options, direction, width, progress
             )
         build = _CHUNK_CACHE[key]
     return build(t0, t1, saveat)
@@ -275,7 +317,7 @@ def _compiled_chunk(scene, t0, t1, flags, x0_batched, devices, width, simulate_k
 _CHUNK_CACHE: dict = {}
 
 
-def _build_chunk(scene, in_axes_args, x0_batched, devices, options, direction, width):
+def _build_chunk(scene, in_axes_args, x0_batched, devices, options, direction, width, progress):
     x_axis = 0 if x0_batched else None
     is_none = lambda v: v is None  # noqa: E731
 
@@ -293,8 +335,7 @@ def _build_chunk(scene, in_axes_args, x0_batched, devices, options, direction, w
     else:
         # Every option of simulate but those the chunk sets itself.
         kw = {**_SIMULATE_OPTIONS, **options}
-        throw = kw.pop("throw")
-        for own in ("saveat", "direction"):
+        for own in ("saveat", "direction", "throw"):
             kw.pop(own)
 
         def run(x0s, a, valid, t0, t1, saveat):
@@ -309,8 +350,8 @@ def _build_chunk(scene, in_axes_args, x0_batched, devices, options, direction, w
                 scene, lane_x0, t0, t1, lane_args, saveat=saveat, direction=direction, **kw
             )
             x0s = x0s.astype(checked.x0.dtype)  # as simulate's validate_inputs does
-            sol = run_pool(program, x0s, a, (x_axis, in_axes_args), valid, width)
-            return _throw_if_failed(sol) if throw else sol
+            return run_pool(program, x0s, a, (x_axis, in_axes_args), valid, width,
+                            on_finished=_report_lanes_done if progress else None)
 
     if len(devices) == 1:
         device = devices[0]

@@ -6,6 +6,7 @@ Checks that need values (NaN in x0, t0 == t1) run only when the values are concr
 
 from typing import NamedTuple
 
+import diffrax
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -99,18 +100,74 @@ def validate_inputs(
     _check_scene_shapes(scene, x0, t0, args)
 
     ts = None
+    saveat = saveat_times(saveat, t0, t1)
     if saveat is not None:
         ts = jnp.asarray(saveat, dtype=dtype)
         if ts.ndim != 1 or ts.shape[0] == 0:
             raise ValueError(f"saveat must be a non-empty 1-D array of times, got shape {ts.shape}")
-        if is_concrete(saveat) and concrete_times:
-            values = np.asarray(saveat, dtype=np.float64) * sigma
+        if is_concrete(ts) and concrete_times:
+            values = np.asarray(ts, dtype=np.float64) * sigma
             if np.any(np.diff(values) < 0):
                 raise ValueError("saveat times must be monotone in the direction of integration")
             lo, hi = sorted((a, b))
             if np.any(values * sigma < lo) or np.any(values * sigma > hi):
                 raise ValueError("saveat times must lie between t0 and t1")
     return Checked(x0, t0, t1, sigma, ts)
+
+
+# Diffrax's default `fn` (save the state), read from a SubSaveAt: it is not exported.
+_SAVE_Y = diffrax.SubSaveAt(t0=True).fn
+_SAVEAT_WORKS = (
+    "grazejax saves states at given times: pass saveat=diffrax.SaveAt(ts=...), with t0=True "
+    "and/or t1=True if wanted, or a 1-D array of times"
+)
+
+
+def saveat_times(saveat, t0, t1):
+    """The times asked for by `saveat` (an array of times or a `diffrax.SaveAt`), or None.
+
+    A `SaveAt` is read as Diffrax reads it: `t0=True` saves at t0, `ts` at those times,
+    `t1=True` at t1, in that order. What grazejax cannot honour (`steps`, `dense`, `fn`,
+    solver or controller state, several `subs`) raises a `ValueError` that names what works.
+    """
+    if saveat is None or not isinstance(saveat, diffrax.SaveAt):
+        return saveat
+    for flag in ("dense", "solver_state", "controller_state", "made_jump"):
+        if getattr(saveat, flag):
+            raise ValueError(
+                f"saveat=diffrax.SaveAt({flag}=True) is not supported: {_SAVEAT_WORKS}. "
+                "(The impact log already holds every impact's pre and post state.)"
+            )
+    sub = saveat.subs
+    if not isinstance(sub, diffrax.SubSaveAt):
+        raise ValueError(
+            "saveat=diffrax.SaveAt(subs=...) with several SubSaveAt is not supported (and an "
+            f"empty SaveAt saves nothing): {_SAVEAT_WORKS}"
+        )
+    if sub.steps:
+        raise ValueError(
+            "saveat=diffrax.SaveAt(steps=True) is not supported: grazejax's loop has no "
+            f"per-step output. {_SAVEAT_WORKS}"
+        )
+    if sub.fn is not _SAVE_Y:
+        raise ValueError(
+            "saveat=diffrax.SaveAt(fn=...) is not supported: save the states and apply the "
+            f"function to sol.ts, sol.xs afterwards. {_SAVEAT_WORKS}"
+        )
+    parts = []
+    if sub.t0:
+        parts.append(jnp.reshape(jnp.asarray(t0), (1,)))
+    if sub.ts is not None:
+        parts.append(jnp.reshape(jnp.asarray(sub.ts), (-1,)))
+    if sub.t1:
+        if is_concrete(t1) and not np.isfinite(float(np.asarray(t1))):
+            raise ValueError(
+                "saveat=diffrax.SaveAt(t1=True) with t1 = inf: there is no time t1 to save at; "
+                "the state where the run stopped is Solution.t_final, Solution.x_final"
+            )
+        parts.append(jnp.reshape(jnp.asarray(t1), (1,)))
+    dtype = jnp.result_type(*parts)
+    return jnp.concatenate([p.astype(dtype) for p in parts])
 
 
 def _check_scene_shapes(scene: Scene, x0, t0, args):

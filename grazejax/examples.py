@@ -108,7 +108,7 @@ def smalldisc() -> Scene:
     Γ2 = {x1 = 0, x2 ≤ 0}: Δx2 = −(1 + R2 + μ (x2 − e^{0.001π/2})) x2.
 
     The paper's parenthesis in the Γ2 law is unbalanced; this closing is our reading
-    (DESIGN.md §3). `args = {"mu", "a", "c", "R1", "R2", "v_ref"}` (see `smalldisc_args`).
+    (docs/design.md, *The paper's examples*). `args = {"mu", "a", "c", "R1", "R2", "v_ref"}` (see `smalldisc_args`).
     """
 
     def vector_field(t, x, args):

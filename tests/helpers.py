@@ -1,4 +1,9 @@
-"""Shared test helpers: tolerance-scaled comparisons and an independent scipy reference."""
+"""Shared test helpers: central differences, tree comparisons, the scenes several test
+modules use, and an independent scipy reference.
+
+Nothing here runs at import beyond defining functions: scenes are built by the functions
+below (or by the test modules themselves), never registered in a shared table.
+"""
 
 import math
 
@@ -7,6 +12,42 @@ import numpy as np
 from scipy.integrate import solve_ivp
 
 import grazejax as gj
+
+
+def central_differences(fn, x, h):
+    """Central differences of `fn` at `x`: (fn(x + h e_k) - fn(x - h e_k)) / 2h, one column
+    per coordinate k of `x` (a scalar `x` gives the derivative itself).
+
+    Their error is O(h^2 |third derivative|) plus O(eps |fn| / h) from round-off: pick `h`
+    for the test.
+    """
+    x = np.asarray(x, np.float64)
+    if x.ndim == 0:
+        return (np.asarray(fn(x + h)) - np.asarray(fn(x - h))) / (2 * h)
+    columns = [
+        (np.asarray(fn(x + h * e)) - np.asarray(fn(x - h * e))) / (2 * h) for e in np.eye(x.size)
+    ]
+    return np.stack(columns, axis=-1)
+
+
+def tree_allclose(a, b, *, rtol=0.0, atol=0.0) -> bool:
+    """Whether two pytrees have the same structure and leaves equal within rtol/atol
+    (NaN equal to NaN: padding rows of impact logs are NaN)."""
+    import jax
+
+    leaves_a, tree_a = jax.tree.flatten(a)
+    leaves_b, tree_b = jax.tree.flatten(b)
+    if tree_a != tree_b:
+        return False
+    return all(
+        np.shape(u) == np.shape(v) and np.allclose(u, v, rtol=rtol, atol=atol, equal_nan=True)
+        for u, v in zip(leaves_a, leaves_b, strict=True)
+    )
+
+
+def rotation_field(t, x, args):
+    """x1' = x2, x2' = -x1: circles about the origin (a harmonic oscillator)."""
+    return jnp.stack([x[1], -x[0]])
 
 
 def free_fall_scene(restitution=0.8):
@@ -20,17 +61,6 @@ def free_fall_scene(restitution=0.8):
         jump=lambda t, x, args: x.at[1].set(-restitution * x[1]),
     )
     return gj.Scene(vector_field, [floor])
-
-
-def central_differences(fn, x, step):
-    """(fn(x + h e_j) - fn(x - h e_j)) / 2h for each coordinate j, as the last axis: the
-    Jacobian, with error h² |third derivative|/6 plus fn's own noise divided by h."""
-    x = np.asarray(x, float)
-    cols = [
-        (np.asarray(fn(x + step * e)) - np.asarray(fn(x - step * e))) / (2 * step)
-        for e in np.eye(len(x))
-    ]
-    return np.stack(cols, axis=-1)
 
 
 def dip_start(delta, a, v0):

@@ -25,6 +25,8 @@ from grazejax._periodic import (
     saltation,
 )
 
+from .helpers import central_differences
+
 EX1DOF = ex.ex1dof()
 EPS = 1e-4
 TOL = dict(rtol=1e-12, atol=1e-13)  # one set for all ex1dof solves: one compiled program
@@ -108,7 +110,7 @@ def test_monodromy_matches_finite_differences_and_saltation():
     run = jax.jit(lambda x: gj.simulate(EX1DOF, x, 0.0, T, args, **TOL).x_final)
     x0 = np.asarray(orbit.x0)
     h = 1e-6
-    fd = np.column_stack([(run(x0 + h * e) - run(x0 - h * e)) / (2 * h) for e in np.eye(2)])
+    fd = central_differences(run, x0, h)
     np.testing.assert_allclose(orbit.monodromy, fd, rtol=1e-5, atol=1e-6)
     # The closed-form saltation matrix maps f⁻ to f⁺ at the impact.
     S = np.asarray(saltation(EX1DOF, 0, orbit.impact_times[0], orbit.impact_pre[0], args))
@@ -125,7 +127,7 @@ def test_period_derivative_by_implicit_function_theorem():
 
     derivative = float(jax.jacfwd(period_of)(0.2))
     h = 1e-5
-    fd = (float(period_of(0.2 + h)) - float(period_of(0.2 - h))) / (2 * h)
+    fd = float(central_differences(period_of, 0.2, h))
     np.testing.assert_allclose(derivative, fd, rtol=1e-6)
 
 

@@ -1,4 +1,4 @@
-"""Layer 2: the event semantics of DESIGN.md §2, one behaviour per test."""
+"""Layer 2: the event semantics of docs/semantics.md, one behaviour per test."""
 
 import math
 
@@ -11,23 +11,19 @@ from scipy.optimize import brentq
 import grazejax as gj
 from grazejax import examples as ex
 
-from .helpers import dip_start, free_fall_scene, scipy_reference
+from .helpers import dip_start, free_fall_scene, rotation_field, scipy_reference
 
 TIGHT = dict(rtol=1e-12, atol=1e-12)
 
 
 def rotation_wall_scene(where=None, c=-0.5):
     """x1' = x2, x2' = −x1 with a wall Φ = x1 − c (free side x1 > c), elastic."""
-
-    def vector_field(t, x, args):
-        return jnp.stack([x[1], -x[0]])
-
     wall = gj.Surface(
         phi=lambda t, x, args: x[0] - c,
         jump=lambda t, x, args: x.at[1].set(-x[1]),
         where=where,
     )
-    return gj.Scene(vector_field, [wall])
+    return gj.Scene(rotation_field, [wall])
 
 
 # ---------------------------------------------------------------- restarts ----------

@@ -124,5 +124,5 @@ def test_max_steps_exhausted():
 
 
 def test_throw_raises_on_failure():
-    with pytest.raises(Exception, match="did not succeed"):
+    with pytest.raises(gj.SimulationError, match="MAX_STEPS"):
         gj.simulate(BALL, [1.0, 0.0], 0.0, 100.0, {"g": 9.81, "e": 1.0}, max_steps=20, throw=True)

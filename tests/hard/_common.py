@@ -19,7 +19,7 @@ import numpy as np
 import grazejax as gj
 from grazejax import examples as ex
 
-from ..helpers import free_fall_scene
+from ..helpers import free_fall_scene, rotation_field
 
 EPS = float(np.finfo(np.float64).eps)
 FLOOR_ULPS = 64  # the documented contact floor, in ulps of the gap's scale (README)
@@ -51,13 +51,9 @@ OSCILLATOR = ex.impact_oscillator()
 EX1DOF = ex.ex1dof()
 
 
-def _rotation_field(t, x, args):
-    return jnp.stack([x[1], -x[0]])
-
-
 # x1' = x2, x2' = −x1 (circles about 0) with a wall x1 = −c (free side x1 > −c), elastic.
 ROTATION_WALL = gj.Scene(
-    _rotation_field,
+    rotation_field,
     [
         gj.Surface(
             phi=lambda t, x, a: x[0] + a["c"],
@@ -74,11 +70,12 @@ ROTATION_WALL = gj.Scene(
 
 
 @functools.cache
-def runner(scene_name: str, tol: str = "default", max_impacts: int = 1, direction: int = 1,
+def runner(scene, tol: str = "default", max_impacts: int = 1, direction: int = 1,
            max_steps: int = 100_000, solver=None, allow_float32: bool = False, jac: bool = False,
            zeno: str = "stop"):
-    """jit(simulate) for a named scene with traced (x0, t0, t1, args), compiled once."""
-    scene = SCENES[scene_name]
+    """jit(simulate) for a scene (a name from `SCENES`, or a test module's own `Scene`)
+    with traced (x0, t0, t1, args), compiled once per scene and options."""
+    scene = SCENES[scene] if isinstance(scene, str) else scene
     options = dict(TOLERANCES[tol], max_impacts=max_impacts, direction=direction,
                    max_steps=max_steps, allow_float32=allow_float32, zeno=zeno)
     if solver is not None:

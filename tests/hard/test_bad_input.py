@@ -15,7 +15,7 @@ import pytest
 import grazejax as gj
 from grazejax import examples as ex
 
-from ._common import SCENES, f64, f64_args, runner, status
+from ._common import f64, f64_args, runner, status
 
 
 def _ball_field(t, x, a):
@@ -23,7 +23,7 @@ def _ball_field(t, x, a):
 
 
 # A ball whose floor law breaks (NaN) above the impact speed vmax.
-SCENES["fragile_ball"] = gj.Scene(
+FRAGILE_BALL = gj.Scene(
     _ball_field,
     [
         gj.Surface(
@@ -33,7 +33,7 @@ SCENES["fragile_ball"] = gj.Scene(
     ],
 )
 # A floor that stops the ball dead (v → e·v with e = 0): J is not invertible.
-SCENES["sticky_floor"] = gj.Scene(
+STICKY_FLOOR = gj.Scene(
     _ball_field,
     [gj.Surface(phi=lambda t, x, a: x[0], jump=lambda t, x, a: x.at[1].set(a["e"] * x[1]))],
 )
@@ -58,7 +58,7 @@ def test_nan_args_and_nan_jumps_stay_in_their_lane():
     g, vmax, t1 = 9.81, 5.0, 1.0
     x0s = f64([[1.0, 0.0], [1.0, 0.0], [2.0, 0.0], [0.5, 1.0]])
     es = f64([0.8, np.nan, 0.8, 0.5])
-    single = runner("fragile_ball", "tight", max_impacts=20)
+    single = runner(FRAGILE_BALL, "tight", max_impacts=20)
     batched = jax.jit(jax.vmap(single, in_axes=(0, None, None, {"g": None, "e": 0, "vmax": None})))
     args = {"g": f64(g), "e": es, "vmax": f64(vmax)}
     batch = batched(x0s, f64(0.0), f64(t1), args)
@@ -103,7 +103,7 @@ def test_backward_batch_with_a_non_invertible_lane_keeps_the_other_lanes():
     """Lane 0: v → −0.5 v (invertible); lane 1: v → 0 (not). Backward from (0.5, 3) at
     t = 1 to t = 0."""
     g = 9.81
-    single = runner("sticky_floor", "tight", max_impacts=10, direction=-1)
+    single = runner(STICKY_FLOOR, "tight", max_impacts=10, direction=-1)
     batched = jax.jit(jax.vmap(single, in_axes=(0, None, None, {"g": None, "e": 0})))
     x0s = f64([[0.5, 3.0], [0.5, 3.0]])
     batch = batched(x0s, f64(1.0), f64(0.0), {"g": f64(g), "e": f64([-0.5, 0.0])})

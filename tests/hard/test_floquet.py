@@ -19,7 +19,8 @@ import pytest
 
 import grazejax as gj
 
-from ._common import SCENES, f64, f64_args, record, runner, status
+from ..helpers import rotation_field
+from ._common import f64, f64_args, record, runner, status
 
 
 def _quadratic_wall():
@@ -30,10 +31,10 @@ def _quadratic_wall():
     )
 
 
-SCENES["quad_ball"] = gj.Scene(
+QUAD_BALL = gj.Scene(
     lambda t, x, a: jnp.stack([x[1], -a["g"] * jnp.ones_like(x[0])]), [_quadratic_wall()]
 )
-SCENES["quad_rotation"] = gj.Scene(lambda t, x, a: jnp.stack([x[1], -x[0]]), [_quadratic_wall()])
+QUAD_ROTATION = gj.Scene(rotation_field, [_quadratic_wall()])
 
 RHO = 2.0
 CASES = {
@@ -41,7 +42,7 @@ CASES = {
     "free fall": ("default", dict(g=9.81, k=0.8), lambda v: [v * v / (2 * 9.81), 0.0], lambda v: 2 * v / 9.81),
     "rotation": ("tight", dict(k=0.8), lambda v: [v, 0.0], lambda v: math.pi),
 }
-SCENE_OF = {"free fall": "quad_ball", "rotation": "quad_rotation"}
+SCENE_OF = {"free fall": QUAD_BALL, "rotation": QUAD_ROTATION}
 
 
 @pytest.mark.parametrize("case", list(CASES))
@@ -72,7 +73,7 @@ def test_divergence_from_the_unstable_orbit_grows_by_the_multiplier(case):
 def test_monodromy_eigenvalues_are_one_and_the_multiplier():
     """jacfwd of x(T) for one period T = π of the rotation case, from the apex."""
     v_star = 1 / 0.8
-    jac = runner("quad_rotation", "tight", max_impacts=3, jac=True)
+    jac = runner(QUAD_ROTATION, "tight", max_impacts=3, jac=True)
     M = np.asarray(jac(f64([v_star, 0.0]), f64(0.0), f64(math.pi), f64_args(k=0.8)))
     eig = np.sort(np.linalg.eigvals(M).real)
     np.testing.assert_allclose(eig, [1.0, RHO], atol=1e-8)

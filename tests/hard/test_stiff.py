@@ -21,9 +21,9 @@ from hypothesis import strategies as st
 
 import grazejax as gj
 
-from ._common import SCENES, f64, f64_args, record, runner, status
+from ._common import f64, f64_args, record, runner, status
 
-SCENES["relaxation"] = gj.Scene(
+RELAXATION = gj.Scene(
     lambda t, x, a: jnp.stack([-a["lam"] * (x[0] - x[1]), -a["c"] * jnp.ones_like(x[1])]),
     [
         gj.Surface(
@@ -72,7 +72,7 @@ def test_stiff_relaxation_towards_a_wall_kvaerno5(log_lam, c, H, x0, u0):
     """Random stiffness 1e3..1e6; with u0 < 0 the first impact happens inside the stiff
     transient (after ~ln(x0/|u0|)/λ), the hardest place to locate it."""
     lam = 10.0**log_lam
-    run = runner("relaxation", "default", max_impacts=N_IMPACTS, solver=KVAERNO5)
+    run = runner(RELAXATION, "default", max_impacts=N_IMPACTS, solver=KVAERNO5)
     sol = run(f64([x0, u0]), f64(0.0), f64(1e3), f64_args(lam=lam, c=c, H=H))
     assert status(sol) == gj.Status.MAX_IMPACTS
     exact = _reference_times(x0, u0, lam, c, H, N_IMPACTS)

@@ -1,0 +1,48 @@
+"""The checks CI runs besides the tests: ruff's lint rules and the documentation build in
+strict mode (a broken cross-reference, link or anchor fails). Both tools come with the
+`test` extra; without them these tests are skipped with the command that installs them."""
+
+import importlib.util
+import os
+import subprocess
+import sys
+import types
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+INSTALL = 'pip install -e ".[test]"'
+
+
+def _run(*command, cwd=ROOT):
+    env = dict(os.environ, NO_MKDOCS_2_WARNING="1")  # mkdocs-material's banner, not ours
+    return subprocess.run(
+        [sys.executable, "-m", *command], cwd=cwd, env=env, capture_output=True, text=True,
+        timeout=600,
+    )
+
+
+@pytest.mark.skipif(importlib.util.find_spec("ruff") is None, reason=f"ruff: {INSTALL}")
+def test_ruff_check_is_clean():
+    result = _run("ruff", "check", "grazejax", "tests", "benchmarks")
+    assert result.returncode == 0, result.stdout + result.stderr
+
+
+@pytest.mark.skipif(
+    importlib.util.find_spec("mkdocs") is None or importlib.util.find_spec("mkdocstrings") is None,
+    reason=f"mkdocs and mkdocstrings (the `docs` extra): {INSTALL}",
+)
+def test_docs_build_in_strict_mode(tmp_path):
+    result = _run("mkdocs", "build", "--strict", "--site-dir", str(tmp_path / "site"))
+    assert result.returncode == 0, result.stdout + result.stderr
+    api = (tmp_path / "site" / "api" / "index.html").read_text(encoding="utf-8")
+    # The reference is generated from the docstrings: every public name has an entry.
+    import grazejax
+
+    public = [
+        name for name, value in vars(grazejax).items()
+        if not name.startswith("_") and not isinstance(value, types.ModuleType)
+    ]
+    missing = [name for name in public if f'id="grazejax.{name}"' not in api]
+    assert not missing, f"public names without an API entry: {missing}"
