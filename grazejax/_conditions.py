@@ -1,15 +1,16 @@
-r"""Numerical checks of the paper's standing conditions (C1), (C2), (C4)–(C7).
+r"""Numerical checks of the paper's standing conditions (C1)–(C7) and of (A1).
 
 Akhmet & Kıvılcım (§2) assume, for Φ: D^r → R, Γ = Φ⁻¹(0), J: Γ^r → D^r, Γ̃ = J(Γ),
 Φ̃ = Φ ∘ J⁻¹ and J̃ = J⁻¹ on Γ̃ (quoted as printed; ∂Γ is the boundary of the piece):
 
 - (C1) ∇Φ(x) ≠ 0 for all x ∈ Γ;
 - (C2) J ∈ C¹(Γ^r) and det[∂J(x)/∂x] ≠ 0 for all x ∈ Γ^r \ ∂Γ;
-- (C3) Γ ∩ Γ̃ ⊆ ∂Γ ∩ ∂Γ̃ (not checked here);
+- (C3) Γ ∩ Γ̃ ⊆ ∂Γ ∩ ∂Γ̃;
 - (C4) ⟨∇Φ(x), f(x)⟩ ≠ 0 if x ∈ Γ \ ∂Γ;
 - (C5) ⟨∇Φ̃(x), f(x)⟩ ≠ 0 if x ∈ Γ̃ \ ∂Γ̃;
 - (C6) J(x) = x for all x ∈ ∂Γ;
-- (C7) J̃(x) = x for all x ∈ ∂Γ̃.
+- (C7) J̃(x) = x for all x ∈ ∂Γ̃;
+- (A1) a grazing point is isolated.
 
 (C8)–(C10) (boundedness, continuation, the group property) are statements about whole
 solutions and are not sampled here.
@@ -35,6 +36,8 @@ STATEMENTS = {
     "C5": "⟨∇Φ̃(x), f(x)⟩ ≠ 0 if x ∈ Γ̃ \\ ∂Γ̃ (Γ̃ = J(Γ), Φ̃ = Φ ∘ J⁻¹)",
     "C6": "J(x) = x for all x ∈ ∂Γ",
     "C7": "J̃(x) = x for all x ∈ ∂Γ̃ (J̃ = J⁻¹ on Γ̃)",
+    "C3": "Γ ∩ Γ̃ ⊆ ∂Γ ∩ ∂Γ̃",
+    "A1": "a grazing point is isolated (no other grazing points in a neighbourhood)",
 }
 
 
@@ -100,7 +103,7 @@ class ConditionReport(eqx.Module):
     def __str__(self) -> str:
         bad = self.violations
         head = (
-            f"Conditions (C1), (C2), (C4)-(C7): {len(bad)} violation(s) "
+            f"Conditions (C1)-(C7), (A1): {len(bad)} violation(s) "
             f"({self.samples} samples per surface in the box {self.box.tolist()}, t in {list(self.t_range)})"
         )
         lines = [head]
@@ -319,7 +322,7 @@ def check_conditions(
     t_range: tuple[float, float] = (0.0, 0.0),
     rtol: float = 1e-9,
 ) -> ConditionReport:
-    r"""Test the paper's (C1), (C2), (C4)–(C7) numerically on every surface piece.
+    r"""Test the paper's (C1)–(C7) and (A1) numerically on every surface piece.
 
     **How each piece is sampled.** `samples` points are drawn uniformly in `box` (and
     times uniformly in `t_range`) and projected onto {Φ_i(t, ·) = 0} by Newton steps
@@ -354,6 +357,16 @@ def check_conditions(
 
     A piece without `where`, or whose boundary is outside the box, has no boundary: (C6)
     and (C7) then hold vacuously (the detail says so).
+
+    - (C3) Γ ∩ Γ̃ ⊆ ∂Γ ∩ ∂Γ̃: interior samples of Γ_i that lie on Γ̃_i (J⁻¹ solved by
+      `inverse_jump`, Φ(J⁻¹x) = 0 to 1e-8 of the box scale, J⁻¹x in the piece), and sign
+      changes of Φ ∘ J⁻¹ between neighbouring interior samples, are violations; untested
+      where J⁻¹ cannot be solved at any sample.
+    - (A1) grazing points are isolated: two neighbouring interior samples that are both
+      tangential in the (C4) test mean a continuum of grazing points.
+
+    (C8)–(C10) (boundedness, continuation, the group property) are statements about whole
+    solutions of the free flow; they are not sampled here yet.
 
     **Arguments:**
 
@@ -454,7 +467,7 @@ def _check_surface(scene, i, ts, xs, args, box, delta, scale, rtol):
         detail = "no point of this piece was found in the box: nothing tested"
         return [
             _result(c, i, name, None, detail, width=tx.shape[1])
-            for c in ("C1", "C2", "C4", "C5", "C6", "C7")
+            for c in ("C1", "C2", "C3", "C4", "C5", "C6", "C7", "A1")
         ]
     pairs = _neighbour_pairs(
         tx[converged] / np.concatenate([[max(1.0, abs(ts).max())], box[:, 1] - box[:, 0]]), 6
@@ -544,6 +557,7 @@ def _check_surface(scene, i, ts, xs, args, box, delta, scale, rtol):
     rate = ev["phi_t"] + np.einsum("ij,ij->i", ev["grad"], f)
     size = grad_norm * np.linalg.norm(f, axis=1) + np.abs(ev["phi_t"])
     flat = interior & (np.abs(rate) <= rtol * size + 1e-300)
+    flat_rate = flat
     zeros = _sign_change_zeros(scene, i, "rate", tx, rate, interior, pairs, args, scale)
     c4_points = list(tx[flat]) + list(zeros)
     detail = f"approach rate ∂Φ/∂t + ∇Φ·f at {k_int} interior points"
@@ -596,6 +610,8 @@ def _check_surface(scene, i, ts, xs, args, box, delta, scale, rtol):
         if skipped:
             detail += f"; {skipped} samples skipped (DJ singular)"
         out.append(_result("C5", i, name, len(c5_points) == 0, detail, c5_points))
+
+    out.extend(_c3_a1(scene, i, name, tx, ev, interior, pairs, flat_rate, args, scale))
 
     # ---- ∂Γ, (C6), (C7) ----
     if surface.where is None:
@@ -654,3 +670,68 @@ def _check_surface(scene, i, ts, xs, args, box, delta, scale, rtol):
             )
         )
     return out
+
+
+def _c3_a1(scene, i, name, tx, ev, interior, pairs, flat_rate, args, scale):
+    """(C3) and (A1) from the samples of the piece (no flights).
+
+    (C3): an interior sample x of Γ_i that also lies on Γ̃_i = J_i(Γ_i) — J⁻¹(x) exists
+    (`inverse_jump`), lies on Φ = 0 within 1e-8 of the box scale and in the closed piece —
+    is a violation; so is a sign change of Φ̃ = Φ ∘ J⁻¹ between neighbouring interior
+    samples (a point of Γ ∩ Γ̃ between them: its midpoint is reported).
+    (A1): the tangency set of (C4) (interior samples with a zero approach rate) must be
+    isolated points: two neighbouring samples that are both tangential mean a continuum
+    of grazing points (a violation); isolated sign changes of the rate do not.
+    """
+    width = tx.shape[1]
+    image_gap, on_image, solved = (np.asarray(v) for v in _image_gaps(
+        scene, i, jnp.asarray(tx[:, 0]), jnp.asarray(tx[:, 1:]), args, scale))
+    both = interior & on_image
+    points = list(tx[both])
+    if len(pairs):
+        a, b = pairs[:, 0], pairs[:, 1]
+        use = interior[a] & interior[b] & np.isfinite(image_gap[a]) & np.isfinite(image_gap[b])
+        change = use & (np.sign(image_gap[a]) * np.sign(image_gap[b]) < 0)
+        points += list(0.5 * (tx[a[change]] + tx[b[change]]))
+    points = _dedupe(np.array(points).reshape(-1, width), scale) if points else []
+    k = int(interior.sum())
+    testable = k > 0 and bool((solved & interior).any())
+    c3 = _result(
+        "C3", i, name, None if not testable else len(points) == 0,
+        f"{k} interior samples of Γ tested against Γ̃ = J(Γ) (J⁻¹ then Φ = 0 in the piece): "
+        f"{int(both.sum())} on Γ̃" + (f", {len(points)} point(s) of Γ ∩ Γ̃ off ∂Γ" if len(points) else "")
+        + ("" if testable else "; not testable: J⁻¹ could not be solved at any sample"),
+        points, width,
+    )
+    run = np.zeros((0, width))
+    if len(pairs):
+        a, b = pairs[:, 0], pairs[:, 1]
+        continuum = flat_rate[a] & flat_rate[b] & (np.max(np.abs(tx[a] - tx[b]), axis=1) > 0)
+        run = 0.5 * (tx[a[continuum]] + tx[b[continuum]])
+    a1 = _result(
+        "A1", i, name, None if k == 0 else len(run) == 0,
+        f"{int(flat_rate.sum())} tangential interior samples; "
+        + (f"{len(run)} neighbouring pair(s) both tangential: a continuum of grazing points"
+           if len(run) else "none neighbouring another: grazing points are isolated"),
+        run, width,
+    )
+    return [c3, a1]
+
+
+@eqx.filter_jit
+def _image_gaps(scene: Scene, i: int, ts, xs, args, scale):
+    """Φ̃ = Φ ∘ J⁻¹ at the samples, and whether each lies on Γ̃ (J⁻¹ solved, in the piece)."""
+    surface = scene.surfaces[i]
+
+    def one(t, x):
+        z, ok = inverse_jump(surface, t, x, args)
+        g = surface.phi(t, z, args)
+        if surface.where is None:
+            inside = jnp.array(True)
+        else:
+            inside = jnp.asarray(surface.where(t, z, args), bool)
+        on = ok & inside & (jnp.abs(g) <= 1e-8 * (1.0 + scale))
+        return jnp.where(ok & inside, g, jnp.nan), on, ok
+
+    return jax.vmap(one)(ts, xs)
+

@@ -188,12 +188,15 @@ def boundary_tol(x):
     return jnp.full_like(x, BOUNDARY_RTOL) * (1.0 + jnp.max(jnp.abs(x)))
 
 
-def on_piece(gap, where, t, x, args, fx, rtol):
+def on_piece(gap, where, t, x, args, fx, rtol, curvature=None):
     """A given point against {gap = 0} ∩ piece, with the simulator's floor.
 
     Returns `(on, on_boundary, rate, normal, tangential, defined)`: on the closed piece,
-    on its boundary, the approach rate ∂Φ/∂t + ∇Φ·f, ∇Φ, tangency (|rate| within `rtol`
-    of its terms' size plus the floor), and whether Φ and its derivatives are finite.
+    on its boundary, the approach rate ∂Φ/∂t + ∇Φ·f, ∇Φ, tangency, and whether Φ and its
+    derivatives are finite. Tangency: |rate| within `rtol` of its terms' size plus the
+    floor, or — given the curvature Φ̈ along the flow — the simulator's own test
+    (`is_tangential`: the parabola through the point dips at most one floor), so that a
+    contact the simulator logs as γ is classified γ.
     `where(x) -> (inside, on_boundary)` or None (the whole zero set).
     """
     g = gap(t, x, args)
@@ -207,6 +210,8 @@ def on_piece(gap, where, t, x, args, fx, rtol):
         inside, boundary = where(x)
     size = jnp.abs(grad) @ jnp.abs(fx) + jnp.abs(g_t)
     tangential = jnp.abs(rate) <= rtol * size + floor
+    if curvature is not None:
+        tangential = tangential | is_tangential(rate, curvature, floor)
     leaves = jnp.stack([jnp.all(jnp.isfinite(v)) for v in (g, g_t, grad)])
     return on & inside, boundary & on & inside, rate, grad, tangential, jnp.all(leaves)
 

@@ -54,7 +54,7 @@ from jaxtyping import Array, Bool, Float, Int
 
 from ._adjoint import loop_kinds
 from ._flow import flight_kwargs, free_flow
-from ._geometry import boundary_tol, closed_piece, inverse_jump, on_piece
+from ._geometry import boundary_tol, closed_piece, gap_rates, inverse_jump, on_piece
 from ._roots import safe_divide
 from ._scene import Scene, Surface
 from ._simulate import simulate
@@ -665,7 +665,10 @@ def _classify_core(scene: Scene, i: int, t, x, args, rtol) -> PointType:
     where_x = None
     if surface.where is not None:
         where_x = lambda z: closed_piece(surface.where, t, z, args, boundary_tol)  # noqa: E731
-    on_s, bd_s, rate_s, grad_s, tan_s, def_s = on_piece(surface.phi, where_x, t, x, args, fx, rtol)
+    _, _, curvature = gap_rates(surface.phi, scene.vector_field, t, x, args)
+    on_s, bd_s, rate_s, grad_s, tan_s, def_s = on_piece(
+        surface.phi, where_x, t, x, args, fx, rtol, curvature
+    )
 
     # The image Γ̃ = J(Γ): y ∈ Γ̃ iff z = J⁻¹(y) ∈ Γ; Φ̃ = Φ ∘ J⁻¹. Where J⁻¹ cannot be
     # solved (J not invertible: the paper's (C2) fails) the point is not put on Γ̃.
@@ -711,7 +714,10 @@ def classify_point(
       gap's scale) and `where_i` true on the closed piece.
     - On the boundary ∂Γ_i: `where_i` changes value within 1e-10·(1 + ‖x‖∞) of x in
       some coordinate direction; pieces without `where` have no boundary.
-    - Tangential (γ): |∂Φ/∂t + ∇Φ·f| ≤ `rtol`·(|∇Φ|·|f| + |∂Φ/∂t|) + floor. We follow
+    - Tangential (γ): |∂Φ/∂t + ∇Φ·f| ≤ `rtol`·(|∇Φ|·|f| + |∂Φ/∂t|) + floor, or the
+      simulator's own test on Γ_i (the parabola Φ + Φ̇s + Φ̈s²/2 through the point dips at
+      most one floor: Φ̇² ≤ 2|Φ̈|·floor), so that contacts `simulate` logs as γ are γ here
+      too (tests/test_agreement.py). We follow
       docs/semantics.md: a tangential contact is γ even at an interior point (the paper's
       Definition grazingpoint puts grazing points on ∂Γ; an interior tangency violates
       its (C4), which [`grazejax.check_conditions`][] reports).

@@ -2127,16 +2127,18 @@ def _claims_conditions(ctx: dict) -> list[dict]:
     rows.append(_claim(
         "conditions.ex1dof", "ex1dof", "(C1)–(C7) can be verified for ex1dof with μ ≠ 0",
         source="Example smallex1dof2", paper="hold",
-        grazejax=f"μ = 0.2: (C5) {report_pos.holds('C5')}, (C6) {report_pos.holds('C6')}, "
+        grazejax=f"μ = 0.2: (C3) {report_pos.holds('C3')}, (C5) {report_pos.holds('C5')}, "
+                 f"(C6) {report_pos.holds('C6')}, "
                  f"(C7) {report_pos.holds('C7')}; μ = −0.2: (C2) {c2.holds} at "
                  f"{_m(c2_point, 6)}",
-        check=f"J(0, 0) = (0, μ²) ≠ (0, 0) (C6); det DJ = −x2(2R + 4μx2²) = 0 at x2 = "
+        check=f"J(0, x2) = (0, −Rx2² − μx2⁴ + μ²) maps Γ into Γ (C3); J(0, 0) = (0, μ²) ≠ (0, 0) (C6); det DJ = −x2(2R + 4μx2²) = 0 at x2 = "
               f"−√(R/(−2μ)) = {x2_zero:.6f} (μ = −0.2)",
         check_method="closed forms", difference=abs(float(c2_point[1]) - x2_zero),
         tolerance=1e-8,
         verdict="differs",
-        reason="μ ≠ 0 breaks (C6)/(C7) at ∂Γ (J(0, 0) = (0, μ²)), and μ < 0 breaks (C2) far "
-               "from the cycle (x2 = −1.5); the cycles near Ψ0 do not visit those points",
+        reason="the jump maps Γ into Γ, so (C3) fails for every μ; μ ≠ 0 breaks (C6)/(C7) at "
+               "∂Γ (J(0, 0) = (0, μ²)), and μ < 0 breaks (C2) far from the cycle (x2 = −1.5); "
+               "the cycles near Ψ0 do not visit those points",
     ))
     return rows
 

@@ -93,7 +93,10 @@ def test_two_wall_scenes_satisfy_the_conditions(name):
 
 def test_ex1dof_conditions_depend_on_mu():
     scene = ex.ex1dof()
-    assert check_conditions(scene, ex.ex1dof_args(0.0), samples=400).ok
+    r = check_conditions(scene, ex.ex1dof_args(0.0), samples=400)
+    # Everything but (C3) holds at μ = 0. (C3): J(0, x2) = (0, −R x2² − μ x2⁴ + μ²) ≤ 0
+    # maps Γ = {x1 = 0, x2 ≤ 0} into Γ, so Γ ∩ Γ̃ = Γ̃ contains interior points of Γ.
+    assert [v.condition for v in r.violations] == ["C3"]
     # μ ≠ 0: J(0, 0) = (0, μ²) ≠ (0, 0), so (C6) fails at ∂Γ = {(0, 0)} (the paper says
     # (C1)-(C7) "can be verified"); and Γ̃ then contains the tangency point (0, 0).
     r = check_conditions(scene, ex.ex1dof_args(0.2), samples=400)
@@ -123,3 +126,28 @@ def test_bad_arguments():
         check_conditions(ex.orbex2(), ex.orbex2_args(), box=[[0, 1]])
     with pytest.raises(ValueError, match="no surfaces"):
         check_conditions(gj.Scene(lambda t, x, a: -x), None, box=[[-1, 1]])
+
+
+def _ball(restricted):
+    floor = gj.Surface(phi=lambda t, x, a: x[0], jump=lambda t, x, a: x.at[1].set(-0.8 * x[1]),
+                       where=(lambda t, x, a: x[1] <= 0) if restricted else None)
+    return gj.Scene(lambda t, x, a: jnp.stack([x[1], -9.81 * jnp.ones_like(x[0])]), [floor])
+
+
+def test_c3_unrestricted_floor_is_its_own_image():
+    """Γ = {h = 0}: J(0, v) = (0, −0.8 v) is on Γ again, so Γ̃ = Γ and every interior
+    point is in Γ ∩ Γ̃ (C3 fails); restricted to v ≤ 0, Γ̃ = {h = 0, v ≥ 0} meets Γ only
+    at (0, 0) = ∂Γ (C3 holds)."""
+    r = check_conditions(_ball(False), None, samples=200)
+    assert r.holds("C3") is False
+    assert check_conditions(_ball(True), None, samples=200).holds("C3") is True
+
+
+def test_a1_a_continuum_of_grazing_points_is_not_isolated():
+    """f = (0, 1) is tangent to Γ = {x1 = 0} everywhere: every point is a grazing point
+    ((C4) and (A1) fail); exnonaxial's single interior tangency is isolated ((A1) holds)."""
+    wall = gj.Surface(phi=lambda t, x, a: x[0], jump=lambda t, x, a: x)
+    shear = gj.Scene(lambda t, x, a: jnp.stack([jnp.zeros_like(x[0]), jnp.ones_like(x[1])]), [wall])
+    r = check_conditions(shear, None, samples=200, box=[[-1, 1], [-1, 1]])
+    assert r.holds("A1") is False and r.holds("C4") is False
+    assert check_conditions(ex.exnonaxial(), ex.exnonaxial_args(), samples=400).holds("A1") is True
