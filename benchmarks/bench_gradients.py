@@ -142,18 +142,7 @@ def section_impacts(sizes, checkpoints, budget_s, max_repeats):
                 }
             )
     # Check the impact counts and the agreement of the modes once, outside the timings.
-    run = jax.jit(
-        lambda p, t1: gj.simulate(
-            OSC,
-            p[:2],
-            0.0,
-            t1,
-            dict(zip(NAMES, p[2:], strict=True)),
-            max_impacts=LOG_ROWS,
-            direction=1,
-            **TOL,
-        )
-    )
+    run = jax.jit(_primal)
     for r in rows:
         t1 = jnp.asarray(r["target_impacts"] * PERIOD + 1.0)
         sol = run(p, t1)
@@ -162,6 +151,12 @@ def section_impacts(sizes, checkpoints, budget_s, max_repeats):
     for r in rows:
         r["ratio_to_primal"] = r["min_s"] / primal[r["target_impacts"]]
     return rows, memory, programs
+
+
+def _primal(p, t1):
+    """The oscillator from p = (x0, v0, parameters...) to t1, logging up to LOG_ROWS impacts."""
+    args = dict(zip(NAMES, p[2:], strict=True))
+    return gj.simulate(OSC, p[:2], 0.0, t1, args, max_impacts=LOG_ROWS, direction=1, **TOL)
 
 
 def section_agreement(compiled):
@@ -182,22 +177,7 @@ def section_direct(sizes, budget_s, max_repeats):
     rows = []
     for n in sizes:
         t1 = jnp.asarray(n * PERIOD + 1.0)
-        steps = int(
-            jax.jit(
-                lambda p, t1: (
-                    gj.simulate(
-                        OSC,
-                        p[:2],
-                        0.0,
-                        t1,
-                        dict(zip(NAMES, p[2:], strict=True)),
-                        max_impacts=LOG_ROWS,
-                        direction=1,
-                        **TOL,
-                    ).num_steps
-                )
-            )(p, t1)
-        )
+        steps = int(jax.jit(lambda p, t1: _primal(p, t1).num_steps)(p, t1))
         max_steps = int(1.5 * steps)
         grad = jax.grad(
             functools.partial(_loss, adjoint=diffrax.DirectAdjoint(), max_steps=max_steps)

@@ -274,6 +274,17 @@ def vibrating_table() -> Scene:
     return Scene(vector_field, [surface])
 
 
+def _rigid_stop() -> Surface:
+    """The impact oscillators' stop at x = σ (Φ = σ − x), Newton's law v → −r v."""
+    return Surface(
+        phi=lambda t, x, args: args["sigma"] - x[0],
+        jump=lambda t, x, args: x.at[1].set(-args["r"] * x[1]),
+        inverse_jump=lambda t, x, args: x.at[1].set(-x[1] / args["r"]),
+        name="stop",
+        impenetrable=True,
+    )
+
+
 def impact_oscillator() -> Scene:
     r"""Forced linear oscillator with a rigid stop (Shaw & Holmes 1983; Nordmark 1991).
 
@@ -288,14 +299,7 @@ def impact_oscillator() -> Scene:
             [x[1], -2 * args["zeta"] * x[1] - x[0] + args["A"] * jnp.cos(args["omega"] * t)]
         )
 
-    stop = Surface(
-        phi=lambda t, x, args: args["sigma"] - x[0],
-        jump=lambda t, x, args: x.at[1].set(-args["r"] * x[1]),
-        inverse_jump=lambda t, x, args: x.at[1].set(-x[1] / args["r"]),
-        name="stop",
-        impenetrable=True,
-    )
-    return Scene(vector_field, [stop])
+    return Scene(vector_field, [_rigid_stop()])
 
 
 def impact_oscillator_args(zeta=0.05, A=1.0, omega=1.5, sigma=0.2, r=0.8) -> dict:
@@ -320,14 +324,7 @@ def fourier_impact_oscillator() -> Scene:
         force = jnp.sum(args["a"] * jnp.cos(phase) + args["b"] * jnp.sin(phase))
         return jnp.stack([x[1], -2 * args["zeta"] * x[1] - x[0] + force])
 
-    stop = Surface(
-        phi=lambda t, x, args: args["sigma"] - x[0],
-        jump=lambda t, x, args: x.at[1].set(-args["r"] * x[1]),
-        inverse_jump=lambda t, x, args: x.at[1].set(-x[1] / args["r"]),
-        name="stop",
-        impenetrable=True,
-    )
-    return Scene(vector_field, [stop])
+    return Scene(vector_field, [_rigid_stop()])
 
 
 def fourier_impact_oscillator_args(a, b=None, zeta=0.05, omega=1.5, sigma=0.2, r=0.8) -> dict:
