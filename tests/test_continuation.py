@@ -61,9 +61,33 @@ def test_ex1dof_grazing_bifurcation_at_zero(tmp_path):
     assert path.exists() and path.stat().st_size > 10_000
 
 
+def _grazing_mu_by_scipy(eps=1e-4):
+    """μ_c, independently: where the impacting cycle's impact speed is 0, its post-impact
+    state is J(0, 0) = (0, μ²) and the flight from there returns to x1 = 0 tangentially.
+    SciPy's DOP853 (rtol 1e-13) flies from (0, μ²) to the next minimum of x1 (x2 crossing 0
+    upwards); Brent's method finds the μ where that minimum is 0 (−0.1059845091 here)."""
+    from scipy.integrate import solve_ivp
+    from scipy.optimize import brentq
+
+    def x1_at_return(mu):
+        def f(t, x):
+            return [x[1], -eps * (x[1] ** 2 + (x[0] - 1) ** 2 - (1 + mu) ** 2) * x[1] - x[0] + 1]
+
+        def minimum(t, x):
+            return x[1]
+
+        minimum.direction, minimum.terminal = 1, True
+        sol = solve_ivp(f, (0.0, 20.0), [0.0, mu * mu], method="DOP853", rtol=1e-13,
+                        atol=1e-14, events=minimum, first_step=1e-3)
+        return sol.y_events[0][0][0]
+
+    return brentq(x1_at_return, -0.2, -0.05, xtol=1e-14)
+
+
 @pytest.mark.slow
 def test_ex1dof_impacting_family_ends_where_its_impact_speed_vanishes():
-    """The impacting cycle of μ < 0 exists only below μ_c ≈ −0.10598: its impact speed → 0."""
+    """The impacting cycle of μ < 0 exists only below μ_c ≈ −0.10598 (computed independently
+    with SciPy): its impact speed → 0."""
     args = ex1dof_args(-0.3)
     orbit = find_periodic_orbit(EX1DOF, [0.0, 0.084], 6.1, args, **TOL)
     assert orbit.start_at_impact and int(orbit.num_impacts) == 1
@@ -71,7 +95,7 @@ def test_ex1dof_impacting_family_ends_where_its_impact_speed_vanishes():
     assert ContinuationStatus(branch.status) == ContinuationStatus.BRANCH_ENDS
     end = branch.grazing[-1]
     assert end.kind == "end" and end.impacts_before == 1
-    np.testing.assert_allclose(end.mu, -0.105985, atol=2e-5)
+    np.testing.assert_allclose(end.mu, _grazing_mu_by_scipy(), atol=2e-5)
     assert abs(end.depth) < 1e-8  # −v²/(2a): the impact speed has gone to 0
     assert np.all(branch.num_impacts == 1) and np.all(branch.stable)
     # Brute force: between μ_c and 0 every start ends on the continuous cycle.
