@@ -27,7 +27,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._geometry import inverse_jump, project_to_surface
-from ._scene import Scene
+from ._scene import Scene, Surface
+from ._simulate import simulate
+from ._status import Status
 
 STATEMENTS = {
     "C1": "∇Φ(x) ≠ 0 for all x ∈ Γ",
@@ -38,6 +40,9 @@ STATEMENTS = {
     "C7": "J̃(x) = x for all x ∈ ∂Γ̃ (J̃ = J⁻¹ on Γ̃)",
     "C3": "Γ ∩ Γ̃ ⊆ ∂Γ ∩ ∂Γ̃",
     "A1": "a grazing point is isolated (no other grazing points in a neighbourhood)",
+    "C8": "sup_D ‖f‖ < ∞ and inf over x0 ∈ Γ̃ of ζ(x0) > 0 (ζ: first meeting with Γ)",
+    "C9": "every solution of y' = f is continuable to ∞ or Γ forward, to −∞ or Γ̃ backward",
+    "C10": "no solution of y' = f meets Γ̃ before it meets Γ as time increases",
 }
 
 
@@ -103,7 +108,7 @@ class ConditionReport(eqx.Module):
     def __str__(self) -> str:
         bad = self.violations
         head = (
-            f"Conditions (C1)-(C7), (A1): {len(bad)} violation(s) "
+            f"Conditions (C1)-(C10), (A1): {len(bad)} violation(s) "
             f"({self.samples} samples per surface in the box {self.box.tolist()}, t in {list(self.t_range)})"
         )
         lines = [head]
@@ -321,6 +326,8 @@ def check_conditions(
     box=None,
     t_range: tuple[float, float] = (0.0, 0.0),
     rtol: float = 1e-9,
+    flights: int = 0,
+    horizon: float = 10.0,
 ) -> ConditionReport:
     r"""Test the paper's (C1)–(C7) and (A1) numerically on every surface piece.
 
@@ -365,8 +372,19 @@ def check_conditions(
     - (A1) grazing points are isolated: two neighbouring interior samples that are both
       tangential in the (C4) test mean a continuum of grazing points.
 
-    (C8)–(C10) (boundedness, continuation, the group property) are statements about whole
-    solutions of the free flow; they are not sampled here yet.
+    (C8)–(C10) are statements about whole solutions of the free flow y' = f; with
+    `flights > 0` they are sampled by flying it (`simulate`, rtol = atol = 1e-10, no jumps)
+    from the first `flights` box samples that lie in the domain D, taken as the free side
+    of every surface (Φ_j ≥ 0 for all j), for `horizon` in each time direction, saving the
+    state at 256 evenly spaced times:
+    (C9) a flight that ends non-finite or by a step failure before meeting Γ_i (forward) or
+    Γ̃_i (backward: Φ̃_i changes sign along the saved states first) is a violation; (C10) a forward flight along which
+    Φ̃_i = Φ_i ∘ J_i⁻¹ changes sign (with J_i⁻¹ solved and in the piece at both saved
+    states) before it meets Γ_i is a violation — a crossing of Γ̃ between two saved states
+    only is seen if Φ̃ changes sign there; (C8) sup‖f‖ over the box samples, and ζ, the time
+    from y0 = J(x) ∈ Γ̃ (x: the first `flights` points of the piece) to the first meeting with
+    Γ: the smallest ζ found must be > 0 (a sampled infimum: a limit ζ → 0, e.g. towards
+    ∂Γ̃, is not seen; the detail names the smallest ζ).
 
     **Arguments:**
 
@@ -378,6 +396,8 @@ def check_conditions(
       `scene.vector_field` evaluates: pass `box` for a field written for any n).
     - `t_range`: times to sample (default t = 0; give a period for non-autonomous scenes).
     - `rtol`: relative tolerance of the "≠ 0" tests.
+    - `flights`, `horizon`: free flights per surface for (C8)–(C10) (default 0: not
+      tested; e.g. 64), each `horizon` long in each time direction.
 
     **Returns:** a [`grazejax.ConditionReport`][]; `print(report)` lists violations first,
     `report.ok`, `report.holds("C4", 0)` and `report.violations` query it.
@@ -420,6 +440,8 @@ def check_conditions(
         xs = box[:, 0] + width * np.asarray(jax.random.uniform(k_x, (samples, n)))
         ts = t_lo + (t_hi - t_lo) * np.asarray(jax.random.uniform(k_t, (samples,)))
         results.extend(_check_surface(scene, i, ts, xs, args, box, delta, scale, rtol))
+        if flights > 0:
+            results.extend(_flight_conditions(scene, i, ts, xs, args, flights, horizon, scale))
     return ConditionReport(tuple(results), int(samples), box, (t_lo, t_hi))
 
 
@@ -735,3 +757,117 @@ def _image_gaps(scene: Scene, i: int, ts, xs, args, scale):
 
     return jax.vmap(one)(ts, xs)
 
+
+
+_FLIGHT_TOL = dict(rtol=1e-10, atol=1e-10)
+_SAVES = 256
+_FAILED = (int(Status.NONFINITE), int(Status.MAX_STEPS), int(Status.STEP_SIZE_UNDERFLOW))
+
+
+def _identity_jump(t, x, args):
+    return x
+
+
+@eqx.filter_jit
+def _flights(scene: Scene, i: int, ts, xs, args, horizon):
+    """Free flights from (t, x): forward until Γ_i is met (its time, status, saved states)
+    and backward to the horizon (status, saved states). No jump is applied."""
+    surface = scene.surfaces[i]
+    probe = Scene(scene.vector_field, [Surface(surface.phi, _identity_jump, where=surface.where)])
+    free = Scene(scene.vector_field, [])
+    fractions = jnp.linspace(0.0, 1.0, _SAVES + 1)[1:]
+
+    def one(t, x):
+        forward = simulate(probe, x, t, t + horizon, args, max_impacts=1, direction=1,
+                           saveat=t + horizon * fractions, max_steps=50_000, **_FLIGHT_TOL)
+        backward = simulate(free, x, t, t - horizon, args, direction=-1,
+                            saveat=t - horizon * fractions, max_steps=50_000, **_FLIGHT_TOL)
+        met = forward.num_impacts > 0
+        tau = jnp.where(met, forward.impact_times[0] - t, jnp.inf)
+        return tau, forward.status, forward.xs, backward.status, backward.xs
+
+    return jax.vmap(one)(ts, xs)
+
+
+def _in_domain(scene, ts, xs, args):
+    gaps = [np.asarray(jax.vmap(lambda t, x, s=s: s.phi(t, x, args))(jnp.asarray(ts), jnp.asarray(xs)))
+            for s in scene.surfaces]
+    return np.all(np.stack(gaps) >= 0, axis=0)
+
+
+def _crosses_image(scene, i, times, states, before, args, scale):
+    """Per flight: does Φ̃_i change sign between consecutive saved states before `before`?"""
+    k, m, n = states.shape
+    g, _, _ = (np.asarray(v) for v in _image_gaps(
+        scene, i, jnp.asarray(times.reshape(-1)), jnp.asarray(states.reshape(-1, n)), args, scale))
+    g = g.reshape(k, m)
+    valid = np.isfinite(g[:, 1:]) & np.isfinite(g[:, :-1]) & (times[:, 1:] < before[:, None])
+    return np.any(valid & (np.sign(g[:, 1:]) * np.sign(g[:, :-1]) < 0), axis=1)
+
+
+def _flight_conditions(scene, i, ts, xs, args, flights, horizon, scale):
+    """(C8), (C9), (C10) on surface i (see `check_conditions`)."""
+    name, surface = scene.surface_name(i), scene.surfaces[i]
+    width = xs.shape[1] + 1
+    start = np.flatnonzero(_in_domain(scene, ts, xs, args))[:flights]
+    if len(start) == 0:
+        note = "no box sample lies on the free side of every surface: nothing flown"
+        return [_result(c, i, name, None, note, width=width) for c in ("C8", "C9", "C10")]
+    t0, x0 = ts[start], xs[start]
+    tau, fwd, saved, bwd, saved_back = (np.asarray(v) for v in _flights(
+        scene, i, jnp.asarray(t0), jnp.asarray(x0), args, float(horizon)))
+    tx = np.concatenate([t0[:, None], x0], axis=1)
+    steps = horizon * np.linspace(0.0, 1.0, _SAVES + 1)[1:]
+    times = t0[:, None] + steps[None, :]
+    blow_fwd = np.isin(fwd, _FAILED) & ~np.isfinite(tau)
+    # Backward, meeting Γ̃ first is an allowed end (C9 b): only a blow-up before it counts.
+    back_times = t0[:, None] - steps[None, :]
+    met_image_back = _crosses_image(scene, i, back_times, np.nan_to_num(saved_back, nan=np.inf),
+                                    np.full(len(t0), np.inf), args, scale)
+    blow_bwd = np.isin(bwd, _FAILED) & ~met_image_back
+    c9 = _result("C9", i, name, not (blow_fwd.any() or blow_bwd.any()),
+                 f"{len(start)} flights of ±{horizon:g} from D: {int(blow_fwd.sum())} forward, "
+                 f"{int(blow_bwd.sum())} backward ended by blow-up or step failure",
+                 tx[blow_fwd | blow_bwd], width)
+    first = _crosses_image(scene, i, times, np.nan_to_num(saved, nan=np.inf), t0 + tau, args, scale)
+    c10 = _result("C10", i, name, not first.any(),
+                  f"{len(start)} forward flights from D: {int(np.isfinite(tau).sum())} meet Γ "
+                  f"within {horizon:g}, {int(first.sum())} cross Γ̃ = J(Γ) before meeting Γ",
+                  tx[first], width)
+    fx = np.asarray(jax.vmap(lambda t, x: scene.vector_field(t, x, args))(jnp.asarray(ts), jnp.asarray(xs)))
+    sup_f = float(np.max(np.linalg.norm(fx, axis=1)))
+    on = _points_on(scene, i, ts, xs, args)[:flights]
+    if len(on) == 0:
+        return [_result("C8", i, name, None, f"sup ‖f‖ = {sup_f:.3g}; no point of Γ found", width=width),
+                c9, c10]
+    post = np.asarray(jax.vmap(lambda t, x: surface.jump(t, x, args))(jnp.asarray(on[:, 0]), jnp.asarray(on[:, 1:])))
+    pad = flights - len(on)  # the same batch size as above: one compiled program
+    zeta = np.asarray(_flights(scene, i, jnp.asarray(np.pad(on[:, 0], (0, max(pad, 0)), mode="edge")),
+                               jnp.asarray(np.pad(post, ((0, max(pad, 0)), (0, 0)), mode="edge")),
+                               args, float(horizon))[0])[: len(on)]
+    met = np.isfinite(zeta)
+    detail = f"sup ‖f‖ = {sup_f:.3g} on the box samples; "
+    if not met.any():
+        return [_result("C8", i, name, bool(np.isfinite(sup_f)),
+                        detail + f"no flight from {len(on)} points of Γ̃ met Γ within {horizon:g}",
+                        width=width), c9, c10]
+    k = int(np.argmin(np.where(met, zeta, np.inf)))
+    c8 = _result("C8", i, name, bool(np.isfinite(sup_f) and zeta[k] > 0),
+                 detail + f"ζ from {int(met.sum())} of {len(on)} points of Γ̃ = J(Γ): smallest "
+                 f"{zeta[k]:.3g}, from y0 = {np.array2string(post[k], precision=6)} (a sampled "
+                 "infimum: a limit ζ → 0 is not seen)", width=width)
+    return [c8, c9, c10]
+
+
+def _points_on(scene, i, ts, xs, args):
+    """Box samples projected onto Γ_i and in the piece: rows (t, x)."""
+    phi, where = scene.surfaces[i].phi, scene.surfaces[i].where
+    projected = np.asarray(jax.vmap(lambda t, x: project_to_surface(phi, t, x, args))(
+        jnp.asarray(ts), jnp.asarray(xs)))
+    gaps = np.asarray(jax.vmap(lambda t, x: phi(t, x, args))(jnp.asarray(ts), jnp.asarray(projected)))
+    ok = np.isfinite(gaps) & (np.abs(gaps) <= 1e-10 * (1 + np.max(np.abs(projected), axis=1)))
+    if where is not None:
+        safe = np.where(ok[:, None], projected, 0.0)
+        ok &= np.asarray(jax.vmap(lambda t, x: jnp.asarray(where(t, x, args), bool))(
+            jnp.asarray(ts), jnp.asarray(safe)))
+    return np.concatenate([ts[:, None], projected], axis=1)[ok]

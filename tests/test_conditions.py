@@ -151,3 +151,30 @@ def test_a1_a_continuum_of_grazing_points_is_not_isolated():
     r = check_conditions(shear, None, samples=200, box=[[-1, 1], [-1, 1]])
     assert r.holds("A1") is False and r.holds("C4") is False
     assert check_conditions(ex.exnonaxial(), ex.exnonaxial_args(), samples=400).holds("A1") is True
+
+
+def test_c9_blow_up_before_the_surface_is_a_violation():
+    """x1' = x1² blows up at t = 1/x1(0) ≤ 2 from x1(0) ∈ [0.5, 2], while Γ = {x2 = −5} is
+    only reached at t = x2(0) + 5 ≥ 4: the flight is not continuable to Γ (C9 fails)."""
+    wall = gj.Surface(phi=lambda t, x, a: x[1] + 5.0, jump=lambda t, x, a: x.at[0].set(-x[0]))
+    scene = gj.Scene(lambda t, x, a: jnp.stack([x[0] ** 2, -jnp.ones_like(x[1])]), [wall])
+    r = check_conditions(scene, None, samples=100, box=[[0.5, 2.0], [-1.0, 1.0]], flights=16)
+    assert r.holds("C9") is False
+
+
+def test_c10_meeting_the_image_first_is_a_violation():
+    """Γ = {x1 = 1} with J = shift by −2: Γ̃ = {x1 = −1}. The flow x' = (−1, 0) from
+    −1 < x1 < 1 (the free side Φ = 1 − x1 > 0) meets Γ̃ and never Γ (C10 fails)."""
+    wall = gj.Surface(phi=lambda t, x, a: 1.0 - x[0], jump=lambda t, x, a: x.at[0].add(-2.0))
+    scene = gj.Scene(lambda t, x, a: jnp.stack([-jnp.ones_like(x[0]), jnp.zeros_like(x[1])]), [wall])
+    r = check_conditions(scene, None, samples=100, box=[[-0.9, 0.9], [-1.0, 1.0]], flights=16,
+                         horizon=4.0)
+    assert r.holds("C10") is False and r.holds("C9") is True
+
+
+@pytest.mark.slow
+def test_orbex2_passes_c8_to_c10():
+    """The paper verifies (C1)–(C10) for orbex2: the flights agree on both walls (from the
+    strip 0 ≤ y1 ≤ c between them, no flight meets an image wall before its wall)."""
+    r = check_conditions(ex.orbex2(), ex.orbex2_args(), samples=200, flights=32)
+    assert all(r.holds(c) is True for c in ("C8", "C9", "C10")), str(r)
