@@ -2093,9 +2093,11 @@ def _claims_ex1dof_bifurcation(ctx: dict) -> list[dict]:
               "conditions.ex1dof")
 def _claims_conditions(ctx: dict) -> list[dict]:
     rows = []
-    report = check_conditions(_scene("orbex2"), _args("orbex2"), samples=400)
+    report = check_conditions(_scene("orbex2"), _args("orbex2"), samples=400, flights=16)
     rows.append(_claim(
-        "conditions.orbex2", "orbex2", "(C1)–(C7) hold for orbex2 (Γ1, Γ2 as bounded pieces)",
+        "conditions.orbex2", "orbex2",
+        "(C1)–(C10) hold for orbex2 (Γ1, Γ2 as bounded pieces; (C3) untestable on Γ1, where "
+        "DJ is singular)",
         source="Example exdds", paper="hold",
         grazejax="hold" if report.ok else "violated: " + ", ".join(
             f"{r.condition} on {r.surface_name}" for r in report.violations),
