@@ -108,3 +108,36 @@ def test_phases_benchmark_smoke(tmp_path):
     # amplification, ~1/√depth); heyoka at the same tolerance 1e-10.
     assert row["in_phase_error"] < 1e-7 and row["random_error"] < 1e-7
     assert row["heyoka_error"] < 1e-8
+
+
+def test_throughput_benchmark_smoke(tmp_path):
+    """benchmarks/bench_throughput.py: every tool's rows, errors against the long-double
+    reference, the matched-accuracy summary; heyoka's batch runners agree with its scalar
+    runner on the impact times."""
+    sys.path.insert(0, str(BENCHMARKS))
+    try:
+        import bench_throughput
+        import peers
+    finally:
+        sys.path.remove(str(BENCHMARKS))
+    rows, table = bench_throughput.main(["--smoke", "--all-cores", "--out", str(tmp_path)])
+    saved = _strict((tmp_path / "throughput.json").read_text())
+    assert len(saved["rows"]) == len(rows)
+    tools = {(r["tool"], r["mode"]) for r in rows}
+    for tool in ("grazejax", "heyoka batch", "heyoka scalar", "SciPy"):
+        assert {(tool, "in_phase"), (tool, "random")} <= tools
+    for r in rows:
+        assert r["us"] > 0 and r["error"] < 1e-4, r  # every tool at tol ≤ 1e-6 on ex1dof
+    # The cheapest row reaching 1e-5 exists for every tool.
+    assert all(table[0][f"{t}|random"] for t in ("grazejax", "heyoka batch", "SciPy"))
+    x0s = np.array([[0.0, 0.03], [0.5, -0.868], [1.9, -0.44], [1.0, 1.0015], [0.0, 0.045]])
+    scalar = peers.HeyokaImpactRunner("ex1dof", tol=1e-12, mu=0.2)
+    expected = np.full((len(x0s), 6), np.nan)  # NaN after a lane's last impact before t1
+    for lane, x0 in enumerate(x0s):
+        found = scalar.run(x0, 0.0, 40.0, 6)["impact_times"]
+        expected[lane, : len(found)] = found
+    assert np.isfinite(expected).sum() >= 24
+    for callback in (False, True):
+        batch = peers.HeyokaBatchRunner("ex1dof", tol=1e-12, callback=callback, mu=0.2)
+        times, _ = batch.run(x0s, 0.0, 40.0, 6)
+        np.testing.assert_allclose(times, expected, rtol=0, atol=1e-12)
