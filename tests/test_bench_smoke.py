@@ -194,3 +194,27 @@ def test_bench_command_checks_what_each_script_needs(monkeypatch, capsys):
     assert "mpmath not installed" in capsys.readouterr().err
     assert len(calls) == 1
 
+
+# ---------------------------------------------------------------- bench_gradients -----
+
+
+def test_gradients_benchmark_smoke(tmp_path):
+    """benchmarks/bench_gradients.py --smoke: every section once at a tiny size (10 impacts,
+    3 harmonics). Its cost is the compilation of jax.grad/jacfwd through the loop."""
+    bench_gradients = _benchmark_module("bench_gradients")
+    assert bench_gradients.main(["--smoke", "--out", str(tmp_path)]) == 0
+    data = json.loads((tmp_path / "gradients.json").read_text())
+    assert data["mode"] == "smoke"
+    modes = {r["mode"] for r in data["impacts"]}
+    assert modes == {"primal", "jacfwd", "grad_rca_default"}
+    for row in data["impacts"]:
+        assert row["finite"] and row["impacts"] >= row["target_impacts"] == 10, row
+    # Reverse mode equals forward mode (the benchmark times the right thing).
+    assert data["agreement"] < 1e-10
+    (direct,) = data["direct"]
+    assert direct["grad_direct_min_s"] > 0 and direct["max_steps"] > direct["steps"]
+    (many,) = data["many"]
+    assert many["parameters"] == 6 and many["grad_vs_jacfwd_rel"] < 1e-10
+    for name in ("gradients_impacts.csv", "gradients_direct.csv", "gradients_many.csv"):
+        assert (tmp_path / name).read_text().count("\n") >= 2, name
+    assert (tmp_path / "gradients.md").read_text().startswith("Gradient benchmark (smoke)")
