@@ -187,6 +187,10 @@ def _reproduce(ns, parser) -> int:
     if errors:
         print(f"grazejax reproduce: {len(errors)} claim(s) could not be computed: "
               f"{', '.join(errors)}", file=sys.stderr)
+    stale = report.get("claims", {}).get("summary", {}).get("reasons_inconsistent")
+    if stale:  # the numbers changed a verdict: the typed-in reason needs a look
+        print(f"grazejax reproduce: the typed-in reason does not fit the computed verdict in "
+              f"{', '.join(stale)}", file=sys.stderr)
     return 1 if failed or errors else 0
 
 

@@ -1103,8 +1103,12 @@ def fig_ex1dof_bifurcation(out: Path) -> dict:
 # - `check`: the same quantity computed independently in this file (a closed form, SciPy's
 #   solve_ivp, the paper's own formula evaluated) and `consistent`: whether the two agree to
 #   a tolerance tied to the solver tolerance (`difference` ≤ `tolerance`);
-# - `verdict`: "agrees" or "differs" with the paper, and `reason` (typo, first-order
-#   approximation, inconsistent formula, different convention, ambiguity + our reading);
+# - `facts` (`_fact`): each printed fact of the claim next to grazejax's computed value;
+# - `verdict`: "agrees" or "differs" with the paper, computed from `facts` (`claim_verdict`:
+#   numbers agree iff max |printed − computed| ≤ tolerance, the printed precision or a
+#   multiple of rtol; structural facts iff equal), and `reason` (typo, first-order
+#   approximation, inconsistent formula, different convention, ambiguity + our reading),
+#   typed in, shown only when the row differs (`reason_consistent` flags a mismatch);
 # - optionally `paper_formula` (the paper's own formula or system, evaluated: where its
 #   printed number comes from, or that it does not) and `corrected` (what the theory
 #   predicts once the parameters that make the claim false are corrected).
