@@ -70,8 +70,8 @@ def missing_peers_line() -> str | None:
     missing = [name for name, ok in (("heyoka", HAVE_HEYOKA), ("SciPy", HAVE_SCIPY)) if not ok]
     if not missing:
         return None
-    return (f"peers not installed: {', '.join(missing)}: their rows are skipped, grazejax's "
-            f"run (install them with `{BENCH_INSTALL}`)")
+    return (f"peers not installed: {', '.join(missing)} (their rows are skipped; grazejax's "
+            f"rows run). Install them with `{BENCH_INSTALL}`.")
 
 
 DPS = 40  # digits of the closed-form references
