@@ -12,7 +12,10 @@ measures the same way; this module adds what the suite needs on top:
 - ground truths: closed forms evaluated in 40-digit arithmetic (mpmath) where the flow is
   linear (`exnonaxial`: a rotation; the forced impact oscillators: matrix exponentials
   through an eigendecomposition, with the impact times as roots found by mpmath), and a
-  heyoka run in 80-bit long double at tol 1e-19 where it is not (`ex1dof`);
+  heyoka run in 80-bit long double at tol 1e-19 where it is not (`ex1dof`; without heyoka,
+  SciPy's DOP853 at rtol 1e-13 with max_step 0.01 instead, stated in `truth_method`);
+- `HAVE_HEYOKA`, `HAVE_SCIPY`, `missing_peers_line`: which peers are installed (the suite
+  skips the others and says how to install them);
 - `errors`: the three accuracy measures of a run against its truth.
 
 Every solver is run with rtol = atol (grazejax's `rtol`/`atol`, SciPy's `rtol`/`atol`,
@@ -21,6 +24,7 @@ heyoka's `tol`).
 
 from __future__ import annotations
 
+import importlib.util
 import math
 import os
 import sys
@@ -45,6 +49,30 @@ from peers import SYSTEMS, HeyokaImpactRunner, ImpactSystem  # noqa: E402
 
 import grazejax as gj  # noqa: E402  (turns float64 on)
 from grazejax import examples  # noqa: E402
+
+
+def _installed(module: str) -> bool:
+    """Whether `module` can be imported (False also where an import hook blocks it)."""
+    try:
+        return importlib.util.find_spec(module) is not None
+    except (ImportError, ValueError):
+        return False
+
+
+# The peers are optional (the `bench` extra): whatever is missing is skipped.
+HAVE_HEYOKA = _installed("heyoka")
+HAVE_SCIPY = _installed("scipy.integrate")
+BENCH_INSTALL = 'pip install -e ".[bench]"'
+
+
+def missing_peers_line() -> str | None:
+    """One line naming the peers that are not installed and how to install them."""
+    missing = [name for name, ok in (("heyoka", HAVE_HEYOKA), ("SciPy", HAVE_SCIPY)) if not ok]
+    if not missing:
+        return None
+    return (f"peers not installed: {', '.join(missing)} (their rows are skipped; grazejax's "
+            f"rows run). Install them with `{BENCH_INSTALL}`.")
+
 
 DPS = 40  # digits of the closed-form references
 SHARED_MACHINE_NOTE = (
@@ -424,6 +452,37 @@ EX1DOF_CYCLE_START = np.array([0.0, 0.0384224329])
 EX1DOF_REF_TOL = 1e-19
 
 
+EX1DOF_SCIPY_REF = {"rtol": 1e-13, "atol": 1e-15, "max_step": 0.01}
+
+
+def scipy_reference(system, x0, t1, params, max_impacts=10**6):
+    """The fallback reference without heyoka: SciPy DOP853 at rtol 1e-13 with max_step 0.01
+    (the near-grazing dips of ex1dof need the step bound). On ex1dof it agrees with the
+    long-double heyoka reference to 1.3e-13 in the impact times (measured; a test checks)."""
+    from peers import ScipyImpactRunner
+
+    runner = ScipyImpactRunner(system, "DOP853", EX1DOF_SCIPY_REF["rtol"],
+                               EX1DOF_SCIPY_REF["atol"], max_step=EX1DOF_SCIPY_REF["max_step"])
+    r = runner.run(np.asarray(x0, float), 0.0, float(t1), max_impacts, **params)
+    return {key: r[key] for key in ("impact_times", "impact_pre", "impact_post", "x_final")}
+
+
+def ex1dof_truth_source() -> tuple[Callable | None, str]:
+    """ex1dof's reference (no closed form): heyoka in long double, else SciPy at rtol 1e-13,
+    else none (the suite then skips ex1dof)."""
+    if HAVE_HEYOKA:
+        return heyoka_reference, (
+            f"heyoka Taylor integrator in 80-bit long double, tol {EX1DOF_REF_TOL:g}, jumps "
+            "in long double (no closed form: nonlinear flow)")
+    if HAVE_SCIPY:
+        ref = EX1DOF_SCIPY_REF
+        return scipy_reference, (
+            f"SciPy DOP853 at rtol {ref['rtol']:g}, atol {ref['atol']:g}, max_step "
+            f"{ref['max_step']:g} (heyoka not installed: the long-double reference is "
+            "replaced; it agrees with it to ~1e-13)")
+    return None, "none: neither heyoka nor SciPy is installed"
+
+
 def heyoka_reference(system, x0, t1, params, max_impacts=10**6):
     runner = HeyokaImpactRunner(system, tol=EX1DOF_REF_TOL, fp_type=np.longdouble)
     r = runner.run(np.asarray(x0, float), 0.0, float(t1), max_impacts, **params)
@@ -473,7 +532,9 @@ def _jax_args(d):
 
 
 def make_cases(include_ball: bool = False) -> dict[str, Case]:
+    """The suite's cases. Without heyoka and SciPy, ex1dof (no closed form) is left out."""
     cases = {}
+    ex1dof_fn, ex1dof_method = ex1dof_truth_source()
     cases["exnonaxial"] = Case(
         name="exnonaxial",
         title="exnonaxial (rotation, line x1 + x2 = √2; impacts approach grazing)",
@@ -522,13 +583,14 @@ def make_cases(include_ball: bool = False) -> dict[str, Case]:
         x0=EX1DOF_CYCLE_START.copy(),
         t1=65.0,
         max_impacts=32,
-        truth_method=f"heyoka Taylor integrator in 80-bit long double, tol {EX1DOF_REF_TOL:g}, "
-        "jumps in long double (no closed form: nonlinear flow)",
-        truth_fn=lambda x0, t1: heyoka_reference("ex1dof", x0, t1, {"mu": EX1DOF_MU}),
+        truth_method=ex1dof_method,
+        truth_fn=lambda x0, t1: ex1dof_fn("ex1dof", x0, t1, {"mu": EX1DOF_MU}),
         scipy_max_step=0.05,
         notes="10 impacts at speed ≈ 0.042 (nearly grazing); after a missed crossing the "
         "flight spends only ≈ 0.08 in x1 < 0, so solve_ivp needs max_step 0.05.",
     )
+    if ex1dof_fn is None:  # no reference to measure errors against
+        del cases["ex1dof"]
     stiff = LinearStopTruth(
         [
             [0.0, 1.0, 0.0],

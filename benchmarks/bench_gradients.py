@@ -310,25 +310,30 @@ def _markdown(data):
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--quick", action="store_true")
+    # The tests (CI): every section once at a tiny size (10 impacts, one checkpoint count,
+    # 3 harmonics, one repeat), to check that the script runs; its numbers mean little.
+    parser.add_argument("--smoke", action="store_true", help=argparse.SUPPRESS)
     parser.add_argument(
         "--out", default=os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
     )
     ns = parser.parse_args(argv)
-    quick = ns.quick
+    quick = ns.quick or ns.smoke
     os.makedirs(ns.out, exist_ok=True)
-    checkpoints = (30, None) if quick else (10, 30, 100, None, 1000, 4000)
-    budget, repeats = (1.0, 3) if quick else (3.0, 7)
+    checkpoints = (None,) if ns.smoke else (30, None) if quick else (10, 30, 100, None, 1000, 4000)
+    budget, repeats = (0.0, 1) if ns.smoke else (1.0, 3) if quick else (3.0, 7)
+    sizes = (10,) if ns.smoke else (10, 100, 1000)
     t_start = time.perf_counter()
     log("impacts: gradient vs primal")
-    impacts, memory, programs = section_impacts((10, 100, 1000), checkpoints, budget, repeats)
+    impacts, memory, programs = section_impacts(sizes, checkpoints, budget, repeats)
     log("agreement of the modes")
     agreement = section_agreement(programs)
     log("direct adjoint")
     direct = section_direct((10,) if quick else (10, 100), budget, repeats)
     log("many parameters")
-    many = [section_many(h, 20, budget, repeats) for h in ((50,) if quick else (50, 200))]
+    harmonics = (3,) if ns.smoke else (50,) if quick else (50, 200)
+    many = [section_many(h, 20, budget, repeats) for h in harmonics]
     data = {
-        "mode": "quick" if quick else "full",
+        "mode": "smoke" if ns.smoke else "quick" if quick else "full",
         "tolerances": TOL,
         "impacts": impacts,
         "memory": memory,

@@ -61,12 +61,9 @@ from peers import HeyokaImpactRunner, ScipyImpactRunner  # noqa: E402
 
 import grazejax as gj  # noqa: E402
 
-try:  # heyoka is in the `bench` extra only
-    import heyoka  # noqa: F401
-
-    HAVE_HEYOKA = True
-except ImportError:  # pragma: no cover
-    HAVE_HEYOKA = False
+# The peers are optional (the `bench` extra): a missing one is skipped, with one line saying
+# how to install it; grazejax's own rows always run.
+HAVE_HEYOKA, HAVE_SCIPY = C.HAVE_HEYOKA, C.HAVE_SCIPY
 
 SOLVERS = {
     "Tsit5": diffrax.Tsit5,
@@ -661,7 +658,8 @@ def dominance(rows, case):
         worst = max(ratios) if ratios else (None, None)
         out[metric] = {
             "levels": levels,
-            "dominates_scipy_everywhere": bool(decided) and all(decided),
+            # None: not compared (SciPy not installed).
+            "dominates_scipy_everywhere": (bool(decided) and all(decided)) if spr else None,
             "worst_ratio_grazejax_over_scipy": worst[0],
             "worst_level": worst[1],
             # Within ±10% the verdict is timing noise on a shared machine.
@@ -680,6 +678,10 @@ def section_work_precision(cases, S, res):
     rows = []
     info = {}
     for name in S["cases"]:
+        if name not in cases:
+            log(f"1) work-precision: {name} skipped: no reference without heyoka or SciPy "
+                f"(install them with `{C.BENCH_INSTALL}`)")
+            continue
         case = cases[name]
         truth = case.truth()
         log(f"1) work-precision: {case.title}")
@@ -726,16 +728,19 @@ def section_work_precision(cases, S, res):
         solvers = S["solvers"].get(name, case.grazejax_solvers)
         for s in solvers:
             wp_grazejax(case, s, S, rows, ci)
-        for m in S["scipy_methods"].get(name, case.scipy_methods):
+        for m in S["scipy_methods"].get(name, case.scipy_methods) if HAVE_SCIPY else ():
             wp_scipy(case, m, S, rows)
         if HAVE_HEYOKA:
             wp_heyoka(case, S, rows)
-        if name == HEADLINE_CASE and S["batch_wp_lanes"]:
+        if name == HEADLINE_CASE and S["batch_wp_lanes"] and not HAVE_HEYOKA:
+            log(f"   batch: skipped: its per-lane long-double references need heyoka "
+                f"(install it with `{C.BENCH_INSTALL}`)")
+        elif name == HEADLINE_CASE and S["batch_wp_lanes"]:
             best = "Dopri8" if "Dopri8" in solvers else solvers[0]
             log(f"   batch: vmap × {S['batch_wp_lanes']} ({best}), per lane")
             wp_batch(case, best, S["batch_wp_lanes"], S, rows)
         ci["dominance"] = dominance(rows, name)
-        for metric, d in ci["dominance"].items():
+        for metric, d in ci["dominance"].items() if HAVE_SCIPY else ():
             log(
                 f"   grazejax dominates scipy at every level 1e-3…1e-11 ({METRICS[metric]}): "
                 f"{d['dominates_scipy_everywhere']}"
@@ -819,7 +824,7 @@ def section_grazing(cases, S, res):
         sp_runners = {
             "DOP853": ScipyImpactRunner(system, "DOP853", tol, tol),
             "DOP853 max_step 0.05": ScipyImpactRunner(system, "DOP853", tol, tol, max_step=0.05),
-        }
+        } if HAVE_SCIPY else {}
         depths = list(S["grazing_depths"]) + [-1e-3, -1e-6]
         if setup == "parabola":
             depths = sorted(set(S["grazing_depths"]) | {1e-14}, reverse=True) + [
@@ -1401,7 +1406,7 @@ def section_scaling(cases, S, res):
     c = first_minus_second(lambda: run(x0, np.float64(10.0), case.args, tol))
     first_minus_second(lambda: run_log(x0, np.float64(10.0), case.args, tol))
     hy = HeyokaImpactRunner(case.peer_system, tol=tol) if HAVE_HEYOKA else None
-    sp = ScipyImpactRunner(case.peer_system, "DOP853", tol, tol)
+    sp = ScipyImpactRunner(case.peer_system, "DOP853", tol, tol) if HAVE_SCIPY else None
     rows_n = []
     for n in S["scaling_impacts"]:
         t1 = np.float64(0.5 * (times[n - 1] + times[n]))  # between impact n and n + 1
@@ -1430,7 +1435,7 @@ def section_scaling(cases, S, res):
                 3 * S["max_rep"],
             )
             row["heyoka_s"] = th["min_s"]
-        if n <= S["scaling_scipy_max"]:
+        if sp is not None and n <= S["scaling_scipy_max"]:
             _, ts_ = measure(
                 lambda t1=t1: sp.run(case.x0, 0.0, t1, 10**6, **case.peer_params), S["budget"], 3
             )
@@ -2121,7 +2126,9 @@ def plot_headline(rows, ci, path):
     ax.set_ylabel("max error of the 10 impact times")
     ax.set_title(
         f"ex1dof (paper), μ = {C.EX1DOF_MU}: 10 nearly grazing impacts, tolerances 1e-3…1e-13\n"
-        "truth: heyoka in long double; " + C.SHARED_MACHINE_NOTE.split(":")[0],
+        "truth: "
+        + ("heyoka in long double" if HAVE_HEYOKA else "SciPy DOP853 at rtol 1e-13 (no heyoka)")
+        + "; " + C.SHARED_MACHINE_NOTE.split(":")[0],
         fontsize=9.5,
     )
     ax.grid(True, alpha=0.3)
@@ -2199,8 +2206,8 @@ def headline_table(res):
         "at its best method and loosest sufficient tolerance (rtol = atol), from a sweep 1e-3…1e-13. "
         "CPU, shared 2-core machine: read the ratios, not absolute times.",
         "",
-        f"| error ≤ | grazejax, one run | grazejax vmap×{lanes}, per lane, lanes in phase | grazejax "
-        f"vmap×{lanes}, per lane, random phases | SciPy solve_ivp | heyoka (Taylor) |",
+        f"| error ≤ | grazejax, one run | grazejax vmap×{lanes or '–'}, per lane, lanes in phase | "
+        f"grazejax vmap×{lanes or '–'}, per lane, random phases | SciPy solve_ivp | heyoka (Taylor) |",
         "|---|---|---|---|---|---|",
     ]
     for row in out:
@@ -2208,6 +2215,10 @@ def headline_table(res):
 
         def cell(k, g=g, row=row):
             v = row[k]
+            if v is None and not HAVE_HEYOKA and k != "scipy":  # heyoka, or the batch refs
+                return "not run: heyoka not installed"
+            if v is None and not HAVE_SCIPY and k == "scipy":
+                return "not run: SciPy not installed"
             if v is None:
                 return "not reached"
             if g is None:
@@ -2241,6 +2252,7 @@ def headline_table(res):
             if wrong
             else ""
         )
+        + ("" if HAVE_HEYOKA else f"heyoka is not installed (`{C.BENCH_INSTALL}`); measured with it: ")
         + "heyoka wins per run: few high-order Taylor steps (order 10–16), compiled by LLVM, at "
         "~1 µs each; a grazejax step costs ~4× a plain diffrax step (the in-step dip search and "
         "landing logic). grazejax's own strengths: batches whose lanes impact together, "
@@ -2376,7 +2388,9 @@ def render_summary(res):
                 L.append(f"| {E:.0e} | " + " | ".join(cells) + " |")
             L += [
                 "",
-                "grazejax dominates SciPy at every level 1e-3…1e-11: "
+                "SciPy is not installed: not compared."
+                if any(d["dominates_scipy_everywhere"] is None for d in dom.values())
+                else "grazejax dominates SciPy at every level 1e-3…1e-11: "
                 + "; ".join(
                     f"{METRICS[k]} **{'yes' if d['dominates_scipy_everywhere'] else 'no'}** (worst gj/scipy "
                     f"{fmt_ratio(d['worst_ratio_grazejax_over_scipy'])} at {fmt_e(d['worst_level'], 0)}"
@@ -2573,6 +2587,9 @@ def findings(res):
     if wp:
         for name, ci in wp["cases"].items():
             d = ci["dominance"]
+            if any(v["dominates_scipy_everywhere"] is None for v in d.values()):
+                out.append(f"**{name}**: not compared with SciPy (not installed).")
+                continue
             verdict = "; ".join(
                 f"{METRICS[k]}: {'yes' if v['dominates_scipy_everywhere'] else 'no'} (worst gj/scipy "
                 f"{fmt_ratio(v['worst_ratio_grazejax_over_scipy'])} at {fmt_e(v['worst_level'], 0)}"
@@ -2717,6 +2734,8 @@ def main(argv=None):
     S = settings(mode)
     sections = tuple(opts.only) if opts.only else S["sections"]
     os.makedirs(opts.out, exist_ok=True)
+    if C.missing_peers_line():
+        log(C.missing_peers_line())
     t_start = time.perf_counter()
     res = {
         "mode": mode,
@@ -2726,6 +2745,8 @@ def main(argv=None):
         "settings": {k: v for k, v in S.items()},
         "sections": list(sections),
         "have_heyoka": HAVE_HEYOKA,
+        "have_scipy": HAVE_SCIPY,
+        "missing_peers": C.missing_peers_line(),
         "api": {
             n: hasattr(gj, n)
             for n in (

@@ -60,7 +60,6 @@ from functools import cache
 from types import SimpleNamespace
 
 import numpy as np
-from scipy.integrate import solve_ivp
 
 __all__ = [
     "SYSTEMS",
@@ -277,6 +276,10 @@ class ScipyImpactRunner:
         self.system.check_names(params)  # missing values may still come with run()
 
     def run(self, x0, t0, t1, max_impacts=10**9, **params):
+        # Imported here: SciPy is an optional peer (the `bench` extra); the suite runs
+        # without it (benchmarks/_cases.py: HAVE_SCIPY).
+        from scipy.integrate import solve_ivp
+
         sysm = self.system
         p = sysm.params(self._base_params, params)
         lib = _FLOAT_LIB

@@ -2,8 +2,10 @@
 
 A tiny subset (`--smoke`: exnonaxial, Tsit5 vs SciPy RK45 vs heyoka, tolerances 1e-4 and
 1e-8) runs through the command line and writes a strict-JSON result with every plotted
-point; the ground truths of the suite are checked against each other. Skipped when
-heyoka (the `bench` extra) is not installed.
+point; the ground truths of the suite are checked against each other (these tests are
+skipped when heyoka, the `bench` extra, is not installed). The suite also runs with its
+peers missing (an import blocker in the child process), and so do the other benchmarks'
+smoke modes.
 """
 
 import importlib.util
@@ -18,16 +20,22 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 BENCHMARKS = ROOT / "benchmarks"
 
-pytestmark = [
-    pytest.mark.skipif(
-        importlib.util.find_spec("heyoka") is None,
-        reason="heyoka is in the `bench` extra (pip install -e '.[bench]')",
-    ),
-    pytest.mark.skipif(
-        not (BENCHMARKS / "bench_suite.py").is_file(),
-        reason="the benchmarks live in the source checkout",
-    ),
-]
+pytestmark = pytest.mark.skipif(
+    not (BENCHMARKS / "bench_suite.py").is_file(),
+    reason="the benchmarks live in the source checkout",
+)
+needs_heyoka = pytest.mark.skipif(
+    importlib.util.find_spec("heyoka") is None,
+    reason="heyoka is in the `bench` extra (pip install -e '.[bench]')",
+)
+
+
+def _benchmark_module(name):
+    sys.path.insert(0, str(BENCHMARKS))
+    try:
+        return importlib.import_module(name)
+    finally:
+        sys.path.remove(str(BENCHMARKS))
 
 
 def _strict(text):
@@ -37,6 +45,7 @@ def _strict(text):
     return json.loads(text, parse_constant=reject)
 
 
+@needs_heyoka
 def test_bench_smoke_writes_parseable_results(tmp_path):
     from grazejax import _cli
 
@@ -65,6 +74,7 @@ def test_bench_smoke_writes_parseable_results(tmp_path):
     assert (tmp_path / "wp_exnonaxial.png").stat().st_size > 10_000
 
 
+@needs_heyoka
 def test_closed_form_truths_agree_with_heyoka_long_double():
     """The mpmath closed forms of the suite against heyoka in 80-bit long double."""
     sys.path.insert(0, str(BENCHMARKS))
@@ -91,6 +101,7 @@ def test_closed_form_truths_agree_with_heyoka_long_double():
     assert depth < 0 and len(truth["impact_times"]) == 0
 
 
+@needs_heyoka
 def test_phases_benchmark_smoke(tmp_path):
     """benchmarks/bench_phases.py runs and writes consistent rows (errors at the tolerance)."""
     sys.path.insert(0, str(BENCHMARKS))
@@ -110,16 +121,13 @@ def test_phases_benchmark_smoke(tmp_path):
     assert row["heyoka_error"] < 1e-8
 
 
+@needs_heyoka
 def test_throughput_benchmark_smoke(tmp_path):
     """benchmarks/bench_throughput.py: every tool's rows, errors against the long-double
     reference, the matched-accuracy summary; heyoka's batch runners agree with its scalar
     runner on the impact times."""
-    sys.path.insert(0, str(BENCHMARKS))
-    try:
-        import bench_throughput
-        import peers
-    finally:
-        sys.path.remove(str(BENCHMARKS))
+    bench_throughput = _benchmark_module("bench_throughput")
+    peers = _benchmark_module("peers")
     rows, table = bench_throughput.main(["--smoke", "--all-cores", "--out", str(tmp_path)])
     saved = _strict((tmp_path / "throughput.json").read_text())
     assert len(saved["rows"]) == len(rows)
@@ -141,3 +149,101 @@ def test_throughput_benchmark_smoke(tmp_path):
         batch = peers.HeyokaBatchRunner("ex1dof", tol=1e-12, callback=callback, mu=0.2)
         times, _ = batch.run(x0s, 0.0, 40.0, 6)
         np.testing.assert_allclose(times, expected, rtol=0, atol=1e-12)
+
+# ---------------------------------------------------------------- missing peers -------
+
+
+def test_bench_suite_runs_without_its_peers(tmp_path, monkeypatch, capfd):
+    """heyoka and SciPy blocked in the child process (a sitecustomize import blocker): the
+    suite says so in one line naming the extra, runs grazejax's rows and writes its files."""
+    from grazejax import _cli
+
+    blocker = tmp_path / "blocker"
+    blocker.mkdir()
+    (blocker / "sitecustomize.py").write_text(
+        "import sys\nsys.modules['heyoka'] = None\nsys.modules['scipy.integrate'] = None\n"
+    )
+    monkeypatch.setenv("PYTHONPATH", str(blocker))
+    real = _cli._installed
+    monkeypatch.setattr(_cli, "_installed",
+                        lambda name: name not in ("heyoka", "scipy") and real(name))
+    out = tmp_path / "out"
+    assert _cli.main(["bench", "--smoke", "--out", str(out)]) == 0
+    printed = capfd.readouterr().out
+    lines = [line for line in printed.splitlines() if "not installed" in line]
+    assert len(lines) == 1 and "heyoka, SciPy" in lines[0]
+    assert 'pip install -e ".[bench]"' in lines[0]
+    data = _strict((out / "suite.json").read_text())
+    assert data["have_heyoka"] is False and data["have_scipy"] is False
+    rows = data["work_precision"]["rows"]
+    assert {r["tool"] for r in rows} == {"grazejax"} and len(rows) == 2
+    assert all(r["ok"] for r in rows if r["tol"] == 1e-8)
+    dominance = data["work_precision"]["cases"]["exnonaxial"]["dominance"]
+    assert all(d["dominates_scipy_everywhere"] is None for d in dominance.values())
+    assert "SciPy is not installed: not compared." in (out / "summary.md").read_text()
+
+
+def test_ex1dof_reference_without_heyoka(monkeypatch):
+    """Without heyoka the ex1dof ground truth is SciPy DOP853 at rtol 1e-13 (said in its
+    `truth_method`); without SciPy too, the case is left out."""
+    C = _benchmark_module("_cases")
+    monkeypatch.setattr(C, "HAVE_HEYOKA", False)
+    fn, method = C.ex1dof_truth_source()
+    assert fn is C.scipy_reference and "SciPy DOP853 at rtol 1e-13" in method
+    case = C.make_cases()["ex1dof"]
+    assert case.truth_method == method
+    ref = fn(case.peer_system, case.x0, 20.0, case.peer_params)
+    assert len(ref["impact_times"]) >= 3
+    if importlib.util.find_spec("heyoka") is not None:  # against the long-double reference
+        ld = C.heyoka_reference(case.peer_system, case.x0, 20.0, case.peer_params)
+        assert len(ld["impact_times"]) == len(ref["impact_times"])
+        assert np.max(np.abs(ld["impact_times"] - ref["impact_times"])) < 1e-11
+        assert np.max(np.abs(ld["impact_post"] - ref["impact_post"])) < 1e-11
+    monkeypatch.setattr(C, "HAVE_SCIPY", False)
+    assert C.ex1dof_truth_source()[0] is None and "ex1dof" not in C.make_cases()
+    assert "heyoka, SciPy" in C.missing_peers_line()
+
+
+def test_bench_command_checks_what_each_script_needs(monkeypatch, capsys):
+    """`grazejax bench` runs the suite without heyoka/SciPy; the older scripts and a missing
+    mpmath end with the install command."""
+    from grazejax import _cli
+
+    calls = []
+    monkeypatch.setattr(_cli.subprocess, "call", lambda cmd, cwd: calls.append(cmd) or 0)
+    real = _cli._installed
+    monkeypatch.setattr(_cli, "_installed", lambda name: name != "heyoka" and real(name))
+    assert _cli.main(["bench", "--quick"]) == 0
+    assert calls[-1][1].endswith("bench_suite.py") and "--quick" in calls[-1]
+    assert _cli.main(["bench", "--script", "core"]) == 1
+    err = capsys.readouterr().err
+    assert "heyoka not installed" in err and 'pip install -e ".[bench]"' in err
+    monkeypatch.setattr(_cli, "_installed", lambda name: name != "mpmath" and real(name))
+    assert _cli.main(["bench"]) == 1
+    assert "mpmath not installed" in capsys.readouterr().err
+    assert len(calls) == 1
+
+
+# ---------------------------------------------------------------- bench_gradients -----
+
+
+def test_gradients_benchmark_smoke(tmp_path):
+    """benchmarks/bench_gradients.py --smoke: every section once at a tiny size (10 impacts,
+    3 harmonics). Its cost is the compilation of jax.grad/jacfwd through the loop."""
+    bench_gradients = _benchmark_module("bench_gradients")
+    assert bench_gradients.main(["--smoke", "--out", str(tmp_path)]) == 0
+    data = json.loads((tmp_path / "gradients.json").read_text())
+    assert data["mode"] == "smoke"
+    modes = {r["mode"] for r in data["impacts"]}
+    assert modes == {"primal", "jacfwd", "grad_rca_default"}
+    for row in data["impacts"]:
+        assert row["finite"] and row["impacts"] >= row["target_impacts"] == 10, row
+    # Reverse mode equals forward mode (the benchmark times the right thing).
+    assert data["agreement"] < 1e-10
+    (direct,) = data["direct"]
+    assert direct["grad_direct_min_s"] > 0 and direct["max_steps"] > direct["steps"]
+    (many,) = data["many"]
+    assert many["parameters"] == 6 and many["grad_vs_jacfwd_rel"] < 1e-10
+    for name in ("gradients_impacts.csv", "gradients_direct.csv", "gradients_many.csv"):
+        assert (tmp_path / name).read_text().count("\n") >= 2, name
+    assert (tmp_path / "gradients.md").read_text().startswith("Gradient benchmark (smoke)")

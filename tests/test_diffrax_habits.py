@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import grazejax as gj
-from grazejax import _cli, _sweep
+from grazejax import _sweep
 from grazejax import examples as ex
 
 BALL = ex.bouncing_ball()
@@ -188,14 +188,3 @@ def test_progress_counts_lanes(monkeypatch, balance):
         # One chunk, but the bar moves as the pool's slots finish, never past the total.
         assert len(bar.updates) > 1 and sum(bar.updates) <= 12
     assert _sweep._BAR[0] is None  # no bar left behind for a later sweep's reports
-
-
-# ---------------------------------------------------------------- grazejax bench ------
-
-
-def test_bench_without_heyoka_names_the_extra(monkeypatch, capsys):
-    real = _cli._installed
-    monkeypatch.setattr(_cli, "_installed", lambda name: name != "heyoka" and real(name))
-    assert _cli.main(["bench", "--quick"]) == 1
-    err = capsys.readouterr().err
-    assert "heyoka not installed" in err and 'pip install -e ".[bench]"' in err

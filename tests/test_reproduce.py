@@ -104,7 +104,20 @@ def test_example_names_select_their_figures(name):
 # --------------------------------------------------------------------------------------
 
 ROW_KEYS = {"id", "example", "claim", "paper", "grazejax", "check", "check_method", "difference",
-            "tolerance", "consistent", "verdict", "reason"}
+            "tolerance", "consistent", "verdict", "reason", "reason_consistent", "facts"}
+
+
+def _check_fact(fact):
+    """A fact's verdict recomputed from its numbers (the rule of docs/audit.md)."""
+    if fact["tolerance"] is None:  # structural: equality
+        assert fact["difference"] is None
+        assert fact["agrees"] == (fact["paper"] == fact["grazejax"]), fact
+    else:  # numbers: max-abs over the entries vs the tolerance
+        paper, computed = np.asarray(fact["paper"], float), np.asarray(fact["grazejax"], float)
+        assert paper.shape == computed.shape, fact
+        difference = float(np.max(np.abs(paper - computed))) if paper.size else 0.0
+        assert difference == pytest.approx(fact["difference"], rel=1e-12, abs=0.0), fact
+        assert fact["agrees"] == (difference <= fact["tolerance"]), fact
 
 
 def _check_rows(rows):
@@ -112,17 +125,79 @@ def _check_rows(rows):
         assert ROW_KEYS <= set(row), row.get("id")
         assert row["verdict"] in ("agrees", "differs"), (row["id"], row["reason"])
         assert row["paper"] and row["grazejax"] and row["check"] and row["check_method"], row["id"]
-        if row["verdict"] == "differs":
-            assert row["reason"], row["id"]
+        # The verdict follows from the facts; a typed-in reason goes with "differs" only.
+        assert row["facts"], row["id"]
+        for fact in row["facts"]:
+            _check_fact(fact)
+        expected = "agrees" if all(f["agrees"] for f in row["facts"]) else "differs"
+        assert row["verdict"] == expected, row["id"]
+        assert row["reason_consistent"] is True, (row["id"], row["verdict"],
+                                                  row.get("unused_reason"))
+        assert bool(row["reason"]) == (row["verdict"] == "differs"), row["id"]
         # grazejax's value and the independent check agree within the row's tolerance
         # (a multiple of the solver tolerance, scaled by the conditioning where it applies).
         assert row["consistent"] is True, (row["id"], row["difference"], row["tolerance"])
         assert row["difference"] <= row["tolerance"]
 
 
+def test_fact_rule():
+    """Numbers: max |printed − computed| over the entries ≤ tolerance; structural: ==."""
+    from grazejax._reproduce import _fact, _half_unit, _printed_tol, claim_verdict
+
+    assert _half_unit("0.939") == pytest.approx(5e-4)
+    assert _half_unit("-0.15") == pytest.approx(5e-3)
+    assert _half_unit("2") == 0.5 and _half_unit("1.5e-3") == pytest.approx(5e-5)
+    assert _printed_tol([[0.939, -0.0001407], [-0.0003165, 1.0]]) == pytest.approx(5e-4)
+    assert _printed_tol([0.0, 1.0], exact=1e-7) == 1e-7  # whole numbers are exact
+    # A printed 0.939 agrees with every value that rounds to it, and only those.
+    tol = _printed_tol(0.939)
+    assert _fact("ρ", 0.939, 0.9394, tol)["agrees"]
+    assert not _fact("ρ", 0.939, 0.9396, tol)["agrees"]
+    assert not _fact("ρ", 0.939, 0.99937, tol)["agrees"]
+    # Matrices: the worst entry decides.
+    printed = np.array([[1.0, 0.0], [0.5, 2.0]])
+    assert _fact("M", printed, printed + 1e-9, 1e-8)["agrees"]
+    bad = printed.copy()
+    bad[1, 0] += 2e-8
+    fact = _fact("M", printed, bad, 1e-8)
+    assert not fact["agrees"] and fact["difference"] == pytest.approx(2e-8)
+    assert not _fact("M", printed, printed[0], 1.0)["agrees"]  # shape mismatch
+    assert not _fact("x", 0.0, float("nan"), 1.0)["agrees"]  # NaN never agrees
+    # Structural facts: equality, no tolerance.
+    assert _fact("kind", ("GAMMA", True), ("GAMMA", True))["agrees"]
+    assert not _fact("kind", ("GAMMA", True), ("ALPHA", True))["agrees"]
+    assert _fact("count", 2, np.int64(2))["agrees"] and not _fact("count", 2, 3)["agrees"]
+    facts = [_fact("count", 2, 2), _fact("ρ", 0.939, 0.9391, tol)]
+    assert claim_verdict(facts) == "agrees"
+    assert claim_verdict(facts + [_fact("holds", True, False)]) == "differs"
+    with pytest.raises(ValueError, match="at least one fact"):
+        claim_verdict([])
+
+
+def test_reason_must_fit_the_computed_verdict():
+    """A reason typed in for a row whose numbers agree (or none for one that differs) is
+    flagged, and the reason is shown only for "differs"."""
+    from grazejax._reproduce import _claim, _fact
+
+    def row(computed, reason):
+        return _claim("x.y", "x", "claim", paper="1", grazejax=str(computed), check="1",
+                      check_method="closed form", difference=0.0, tolerance=1.0,
+                      facts=[_fact("value", 1.0, computed, 1e-6)], reason=reason)
+
+    good = row(1.0, "")
+    assert good["verdict"] == "agrees" and good["reason_consistent"]
+    stale = row(1.0, "typo")
+    assert stale["verdict"] == "agrees" and not stale["reason_consistent"]
+    assert stale["reason"] == "" and stale["unused_reason"] == "typo"
+    differs = row(1.1, "typo")
+    assert differs["verdict"] == "differs" and differs["reason_consistent"]
+    assert differs["reason"] == "typo"
+    assert not row(1.1, "")["reason_consistent"]
+
+
 def test_claims_cheap_groups_and_error_rows(monkeypatch):
-    """The cheap groups in-process (a few seconds after compilation), and a failing group
-    reported as error rows instead of a crash."""
+    """The cheap groups in-process, a failing group reported as error rows instead of a
+    crash, and verdicts that flip when a printed value is changed."""
     from grazejax import _reproduce
 
     def broken(ctx):
@@ -140,15 +215,38 @@ def test_claims_cheap_groups_and_error_rows(monkeypatch):
     good = [r for r in claims["rows"] if r["verdict"] != "error"]
     assert len(good) == 7
     _check_rows(good)
-    # What the table says about orbex2 (computed, not typed in).
-    assert rows["orbex2.psi-grazes"]["verdict"] == "differs"
-    assert "ALPHA impact" in rows["orbex2.psi-grazes"]["grazejax"]
+    # What the table says about orbex2: the numbers behind the verdicts, against
+    # independent values (closed forms in the row's check, the residual ≈ a/2).
+    psi = rows["orbex2.psi-solution"]["facts"][0]
+    assert psi["grazejax"] == pytest.approx(5.0e-4, rel=0.01) and not psi["agrees"]
+    grazes = rows["orbex2.psi-grazes"]
+    assert grazes["verdict"] == "differs" and "ALPHA impact" in grazes["grazejax"]
+    assert grazes["facts"][0]["grazejax"] == "ALPHA"
+    back = rows["orbex2.psi-periodic"]["facts"][0]
+    closing = 0.9 * np.exp(0.0005 * np.pi)  # R2·|y2(θ2)| to first order, ≈ 0.9014
+    assert back["grazejax"] == pytest.approx(closing, abs=5e-4) and not back["agrees"]
     assert rows["orbex2.ystar-type"]["verdict"] == "agrees"
-    assert claims["summary"]["errors"] == 1
+    assert rows["conditions.orbex2"]["verdict"] == "agrees"
+    assert claims["summary"]["errors"] == 1 and claims["summary"]["reasons_inconsistent"] == []
     assert any("[claims 2/3] smalldisc" in line for line in lines)
     assert any("FAILED: ValueError: boom" in line for line in lines)
     md = "\n".join(_reproduce._claims_markdown(claims))
     assert "| smalldisc.cycle |" in md and "**error**" in md
+    assert "y2 after the Γ2 jump: \\|printed − computed\\|" in md
+    # Verdicts are derived: print the computed value and the row agrees (its typed-in
+    # reason is then stale and flagged); print another type and the row differs (no
+    # reason: flagged too).
+    monkeypatch.setitem(_reproduce._PRINTED, "orbex2_psi_return", back["grazejax"])
+    monkeypatch.setitem(_reproduce._PRINTED, "orbex2_ystar", ("ALPHA", True))
+    lines = []
+    again = _reproduce.compute_claims(["orbex2-psi"], progress=lines.append)
+    flipped = {r["id"]: r for r in again["rows"]}
+    assert flipped["orbex2.psi-periodic"]["verdict"] == "agrees"
+    assert flipped["orbex2.ystar-type"]["verdict"] == "differs"
+    assert again["summary"]["reasons_inconsistent"] == ["orbex2.ystar-type",
+                                                         "orbex2.psi-periodic"]
+    assert any("reason does not fit" in line for line in lines)
+    assert "the typed-in reason does not fit" in "\n".join(_reproduce._claims_markdown(again))
 
 
 @pytest.mark.slow  # the whole table: about 2-3 minutes on two cores
@@ -170,6 +268,7 @@ def test_reproduce_claims_table(tmp_path, capsys):
         assert rows[f"{example}.A2"]["verdict"] == "differs"  # square-root singularity
         assert abs(rows[f"{example}.Wx"]["norm_exponent"] + 0.5) < 0.01
     assert rows["ex1dof.cycle-positive-mu"]["verdict"] == "agrees"
+    assert claims["summary"]["reasons_inconsistent"] == []
     printed = capsys.readouterr().out
     assert "[claims 1/" in printed and "claims:" in printed
     md = (out / "report.md").read_text()
