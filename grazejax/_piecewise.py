@@ -172,7 +172,7 @@ class PiecewiseScene(eqx.Module):
     switching: tuple[SwitchingSurface, ...] = eqx.field(static=True)
     surfaces: tuple[Surface, ...] = eqx.field(static=True)
     scene: Scene = eqx.field(static=True)
-    # One row per compiled surface: (label, name, source mode or None, targets).
+    # One row per surface of the compiled scene: (label, name) for `events`.
     _log: tuple = eqx.field(static=True)
     _names: tuple[str, ...] = eqx.field(static=True)
 
@@ -304,16 +304,19 @@ class PiecewiseScene(eqx.Module):
         """The name of the mode of one state y (outside `jit`)."""
         return self._names[int(round(float(np.asarray(y)[-1])))]
 
-    def events(self, sol) -> list[Event]:
-        """The run's impact log as labelled events (outside `jit`, one run).
+    def events(self, sol, lane: int | None = None) -> list[Event]:
+        """The run's impact log as labelled events (outside `jit`; for a batch from
+        `jax.vmap`, pass the `lane`).
 
         Each logged row of `sol` (a [`grazejax.Solution`][] of `.scene`) becomes an
         [`grazejax.Event`][]: `"SLIDE"` when the row enters a sliding mode, `"RELEASE"`
         when it leaves one, `"CROSS"` for a crossing of a switching surface,
         `"TRANSITION"` or `"IMPACT"` otherwise; with the mode names before and after.
         """
+        if lane is not None:
+            sol = jax.tree.map(lambda leaf: leaf[lane], sol)
         if np.ndim(sol.status) > 0:
-            raise ValueError("events() reads one run: index the batch first (sol[i])")
+            raise ValueError("events() reads one run: pass the lane of a batch (lane=i)")
         sliding = {s.sliding for s in self.switching if s.sliding is not None}
         out = []
         for i in range(int(sol.num_impacts)):
@@ -368,8 +371,11 @@ def _filippov_field(phi, f_minus, f_plus):
         _, a = jax.jvp(lambda s, y: phi(s, y, args), (t, x), (jnp.ones_like(t), fm))
         _, b = jax.jvp(lambda s, y: phi(s, y, args), (t, x), (jnp.ones_like(t), fp))
         # a − b > 0 throughout a sliding phase (a > 0 > b); it only nears 0 where both
-        # fields are tangent, where the exits fire first.
-        lam = a / (a - b)
+        # fields are tangent, where the exits fire first. Under vmap this field is also
+        # evaluated (and discarded) for lanes in other modes, where a − b may vanish:
+        # keep those values finite.
+        gap = a - b
+        lam = a / jnp.where(gap == 0, jnp.ones_like(gap), gap)
         return (1 - lam) * fm + lam * fp
 
     return vector_field
