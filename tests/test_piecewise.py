@@ -76,7 +76,7 @@ def test_vmap_sliding_and_free_lanes_equal_single_runs():
         np.testing.assert_allclose(lane.x_final, single.x_final, rtol=0, atol=1e-12)
         np.testing.assert_array_equal(lane.impact_surface, single.impact_surface)
         assert [e.label for e in fo.events(lane)] == [e.label for e in fo.events(single)]
-    lane1 = fo.events(jax.tree.map(lambda leaf: leaf[1], batch))
+    lane1 = fo.events(batch, lane=1)
     assert lane1 == []  # it slides from the start, and never leaves
 
 
@@ -234,7 +234,7 @@ def test_relay_periodic_orbit_with_find_periodic_orbit():
     x0, h = relay_half_period_scipy(args)
     quarter = gj.simulate(rf.scene, rf.state([x0, 0.0], "plus"), 0.0, h / 2, args, rtol=TOL,
                           atol=TOL).x_final
-    guess = quarter.at[:2].multiply(1.01)
+    guess = quarter.at[1].multiply(1.01)  # x[0] is the section (fix=0): keep it
     orbit = gj.find_periodic_orbit(rf.scene, guess, 2 * h * 1.01, args, fix=0,
                                    start_at_impact=False, num_impacts=2)
     assert gj.OrbitStatus(int(orbit.status)) == gj.OrbitStatus.SUCCESS, orbit.message
@@ -248,3 +248,23 @@ def test_relay_periodic_orbit_with_find_periodic_orbit():
     third = math.exp(trace * 2 * h) * ((abs(x0) + mu) / (abs(x0) - mu)) ** 2
     got = np.sort(np.abs(np.asarray(floquet.multipliers)))
     np.testing.assert_allclose(got, np.sort([0.0, third, 1.0]), atol=1e-6)
+
+
+@pytest.mark.slow
+def test_belt_stick_slip_periodic_orbit_is_superstable():
+    # COCO's stickslip case: the cycle sticks once per period, and sticking forgets the
+    # velocity, so the multipliers are 1 (the flow direction), 0 (sticking) and 0 (the mode).
+    bs = ex.belt_stick_slip()
+    args = {"v_b": 0.5, "mu_s": 0.3, "mu_d": 0.2}
+    x_stick, stick, slip = ex.belt_stick_slip_cycle(0.5, 0.3, 0.2)
+    mid = gj.simulate(bs.scene, bs.state([0.3, 0.5], "slow"), 0.0, slip / 2, args, rtol=TOL,
+                      atol=TOL).x_final
+    np.testing.assert_allclose(mid[0], 0.2, atol=1e-9)  # half-way: x = μ_d
+    orbit = gj.find_periodic_orbit(bs.scene, mid.at[1].multiply(1.01), (stick + slip) * 1.01,
+                                   args, fix=0, start_at_impact=False, num_impacts=2)
+    assert gj.OrbitStatus(int(orbit.status)) == gj.OrbitStatus.SUCCESS, orbit.message
+    assert abs(float(orbit.period) - (stick + slip)) < C * TOL * (stick + slip)
+    np.testing.assert_allclose(orbit.x0, mid, atol=C * TOL * (stick + slip))
+    floquet = gj.floquet_multipliers(bs.scene, orbit, args)
+    got = np.sort(np.abs(np.asarray(floquet.multipliers)))
+    np.testing.assert_allclose(got, [0.0, 0.0, 1.0], atol=1e-8)
