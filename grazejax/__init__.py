@@ -47,6 +47,13 @@ from ._periodic import find_periodic_orbit as find_periodic_orbit
 from ._periodic import floquet_multipliers as floquet_multipliers
 from ._periodic import grazing_branches as grazing_branches
 from ._periodic import orbit_contacts as orbit_contacts
+from ._piecewise import Event as Event
+from ._piecewise import FieldCheck as FieldCheck
+from ._piecewise import Mode as Mode
+from ._piecewise import PiecewiseScene as PiecewiseScene
+from ._piecewise import SwitchingSurface as SwitchingSurface
+from ._piecewise import Transition as Transition
+from ._piecewise import check_field_continuity as check_field_continuity
 from ._scene import Scene as Scene
 from ._scene import Surface as Surface
 from ._simulate import simulate as simulate

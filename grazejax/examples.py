@@ -13,6 +13,7 @@ import math
 import jax.numpy as jnp
 import numpy as np
 
+from ._piecewise import Mode, PiecewiseScene, SwitchingSurface, Transition
 from ._scene import Scene, Surface
 
 # --------------------------------------------------------------------------------------
@@ -358,3 +359,154 @@ PAPER_SCENES = {
     "smalldisc": (smalldisc, smalldisc_args),
     "exnonaxial": (exnonaxial, exnonaxial_args),
 }
+
+
+# --------------------------------------------------------------------------------------
+# Piecewise-smooth systems (docs/piecewise.md): modes, switching surfaces, sliding
+# --------------------------------------------------------------------------------------
+
+
+def rocking_block() -> PiecewiseScene:
+    r"""A rigid block rocking on a rigid floor, linearised (Housner 1963; Hogan 1989).
+
+    θ'' = p² (θ − α) while it pivots on its right corner (θ > 0, mode `"right"`),
+    θ'' = p² (θ + α) on its left corner (θ < 0, mode `"left"`), i.e.
+    θ'' = p² (θ − α sign θ). At θ = 0 the pivot changes and the angular velocity is
+    multiplied by the restitution e: each crossing of θ = 0 is a `Transition` with a jump
+    (a guard Φ = θ in `"right"`, Φ = −θ in `"left"`). State (θ, θ', mode);
+    `args = {"p", "alpha", "e"}`. Closed form: `rocking_block_impact_times`.
+    """
+
+    def pivot(side):
+        return lambda t, x, args: jnp.stack([x[1], args["p"] ** 2 * (x[0] - side * args["alpha"])])
+
+    restitution = lambda t, x, args: x.at[1].set(args["e"] * x[1])  # noqa: E731
+    return PiecewiseScene(
+        [Mode("right", pivot(1.0)), Mode("left", pivot(-1.0))],
+        transitions=[
+            Transition("right", "left", lambda t, x, args: x[0], restitution, name="impact"),
+            Transition("left", "right", lambda t, x, args: -x[0], restitution, name="impact"),
+        ],
+    )
+
+
+def rocking_block_impact_times(theta0, p, alpha, e, n):
+    """Exact impact times of `rocking_block` released at rest from 0 < θ0 < α at t = 0.
+
+    The first fall takes t1 = acosh(α/(α − θ0))/p and arrives with |θ'| = w1 =
+    p (α − θ0) sinh(p t1). Each rock after an impact with speed w lasts (2/p)·atanh(w/(pα))
+    (from α (cosh pτ − 1) = (w/p) sinh pτ), and the speeds shrink by e per impact.
+    """
+    t = math.acosh(alpha / (alpha - theta0)) / p
+    w = p * (alpha - theta0) * math.sinh(p * t)
+    times = [t]
+    for _ in range(1, n):
+        w *= e
+        t += 2 / p * math.atanh(w / (p * alpha))
+        times.append(t)
+    return np.array(times)
+
+
+def friction_oscillator() -> PiecewiseScene:
+    r"""The Coulomb friction oscillator x'' + x = −μ sign(x') (Den Hartog 1930).
+
+    Modes `"forward"` (x' > 0: x'' = −x − μ) and `"backward"` (x' < 0: x'' = −x + μ), on
+    the switching surface Σ = {x' = 0}, with Filippov sliding mode `"stick"`: both sides
+    push into Σ where |x| < μ, and there the Filippov field is (0, 0): the mass sticks.
+    `args = {"mu": μ}`. State (x, x', mode). Closed form: `friction_oscillator_turns`.
+    """
+
+    def friction(sign):
+        return lambda t, x, args: jnp.stack([x[1], -x[0] - sign * args["mu"]])
+
+    return PiecewiseScene(
+        [Mode("forward", friction(1.0)), Mode("backward", friction(-1.0))],
+        switching=[SwitchingSurface(lambda t, x, args: x[1], minus="backward", plus="forward",
+                                    sliding="stick", name="x' = 0")],
+    )
+
+
+def friction_oscillator_turns(x0, mu):
+    """Turning times and points of `friction_oscillator` released at rest from x0 at t = 0.
+
+    Each half cycle is a harmonic oscillation about ±μ lasting π, so the k-th turn is at
+    t = kπ with x_k = −sign(x_{k−1}) (|x_{k−1}| − 2μ); the mass sticks at the first turn
+    with |x_k| ≤ μ and stays there. Returns `(times, points)`; the last pair is the stick.
+    """
+    times, points, x = [], [], float(x0)
+    k = 0
+    while abs(x) > mu:
+        x = -math.copysign(abs(x) - 2 * mu, x)
+        k += 1
+        times.append(k * math.pi)
+        points.append(x)
+    return np.array(times), np.array(points)
+
+
+def belt_stick_slip() -> PiecewiseScene:
+    r"""A mass on a spring dragged by a belt, with static and dynamic friction
+    (stick–slip; cf. COCO's `stickslip` demo, and Leine et al. 1998).
+
+    x'' + x = μ_d sign(v_b − x') while slipping, with belt speed v_b > 0. Modes:
+    `"slow"` (x' < v_b: x'' = −x + μ_d), `"fast"` (x' > v_b: x'' = −x − μ_d) and
+    `"stick"` (x' = v_b: the mass rides the belt, (x, x')' = (v_b, 0)). Sticking holds
+    while the spring force is within static friction, |x| ≤ μ_s; at x = μ_s the mass
+    slips back (`"slow"`). A slipping mass reaching v_b sticks if |x| < μ_s, else it
+    slips on. `args = {"v_b", "mu_s", "mu_d"}`, 0 < μ_d < μ_s. Closed form of the
+    stick–slip cycle: `belt_stick_slip_cycle`.
+    """
+
+    def slip(sign):
+        return lambda t, x, args: jnp.stack([x[1], -x[0] + sign * args["mu_d"]])
+
+    def ride(t, x, args):
+        return jnp.stack([args["v_b"] * jnp.ones_like(x[0]), jnp.zeros_like(x[1])])
+
+    holds = lambda t, x, args: jnp.abs(x[0]) < args["mu_s"]  # noqa: E731
+    return PiecewiseScene(
+        [Mode("slow", slip(1.0)), Mode("fast", slip(-1.0)), Mode("stick", ride)],
+        transitions=[
+            Transition("stick", "slow", lambda t, x, args: args["mu_s"] - x[0], name="slip"),
+            Transition("stick", "fast", lambda t, x, args: args["mu_s"] + x[0], name="slip"),
+            Transition("slow", [(holds, "stick"), (None, "fast")],
+                       lambda t, x, args: args["v_b"] - x[1], name="reach belt speed"),
+            Transition("fast", [(holds, "stick"), (None, "slow")],
+                       lambda t, x, args: x[1] - args["v_b"], name="reach belt speed"),
+        ],
+    )
+
+
+def belt_stick_slip_cycle(v_b, mu_s, mu_d):
+    """The stick–slip cycle of `belt_stick_slip` (closed form).
+
+    Sticking starts at x = 2μ_d − μ_s (with x' = v_b) and lasts 2(μ_s − μ_d)/v_b, up to
+    x = μ_s; the slip is an arc of the circle of radius √((μ_s − μ_d)² + v_b²) about
+    (μ_d, 0), lasting π + 2 atan2(v_b, μ_s − μ_d), back to x' = v_b at x = 2μ_d − μ_s.
+    Returns `(x_stick, stick_duration, slip_duration)`.
+    """
+    return 2 * mu_d - mu_s, 2 * (mu_s - mu_d) / v_b, math.pi + 2 * math.atan2(v_b, mu_s - mu_d)
+
+
+def relay_feedback() -> PiecewiseScene:
+    r"""Relay feedback x' = A x + b sign(cᵀx) (Johansson, Rantzer & Åström 1999).
+
+    Modes `"plus"` (cᵀx > 0: A x + b) and `"minus"` (A x − b) on Σ = {cᵀx = 0}, with
+    Filippov sliding mode `"sliding"`. `args = {"A": (n, n), "b": (n,), "c": (n,)}`.
+    With A = [[0, 1], [−1, −2ζ]], b = (0, μ), c = (0, 1) (`relay_feedback_args`), it is a
+    damped oscillator pumped by the relay (x'' + 2ζ x' + x = μ sign x'), with a
+    symmetric limit cycle x(t + T/2) = −x(t).
+    """
+
+    def side(sign):
+        return lambda t, x, args: args["A"] @ x + sign * args["b"]
+
+    return PiecewiseScene(
+        [Mode("plus", side(1.0)), Mode("minus", side(-1.0))],
+        switching=[SwitchingSurface(lambda t, x, args: args["c"] @ x, minus="minus",
+                                    plus="plus", sliding="sliding", name="cᵀx = 0")],
+    )
+
+
+def relay_feedback_args(zeta=0.1, mu=1.0) -> dict:
+    return {"A": jnp.array([[0.0, 1.0], [-1.0, -2 * zeta]]), "b": jnp.array([0.0, mu]),
+            "c": jnp.array([0.0, 1.0])}
