@@ -102,8 +102,9 @@ def simulate(
       shrink geometrically (ratios equal to 5%) and the predicted time left to
       accumulation is below `zeno_rtol × (t − t0)`; the estimate is in `zeno_time`.
     - `zeno`: what happens at a Zeno accumulation or a tangential restart pushed into a
-      surface. `"stop"` (default): the run ends with `Status.ZENO`. `"stick"`: the state
-      slides on the surface (Φ = 0, Φ̇ = 0) under the contact force that the free flow
+      surface: a policy, [`grazejax.ZenoStop`][] or [`grazejax.ZenoStick`][], or its name
+      `"stop"` / `"stick"`. `ZenoStop()` (default): the run ends with `Status.ZENO`.
+      `ZenoStick()`: the state slides on the surface (Φ = 0, Φ̇ = 0) under the contact force that the free flow
       calls for (see *Sticking* below) and is released when the free flow would pull it
       away (Φ̈ ≥ 0); both moments are logged (`ImpactKind.STICK`, `ImpactKind.RELEASE`).
       Forward time only.
@@ -124,7 +125,7 @@ def simulate(
 
     **Returns:** a [`grazejax.Solution`][].
 
-    **Sticking** (`zeno="stick"`): on the contact manifold M = {Φ = 0, Φ̇ = 0} the flow is
+    **Sticking** (`zeno=ZenoStick()`, or `"stick"`): on the contact manifold M = {Φ = 0, Φ̇ = 0} the flow is
     F = f + λd, with Φ̇, Φ̈ the derivatives along the free flow f, λ = −Φ̈/(∇ₓΦ̇·d) and d
     the direction in which the surface's jump law applies its impulses: (DJ − I)∇ₓΦ̇,
     minus its component along ∇ₓΦ (the least-norm ∇ₓΦ̇ direction if the jump law has
