@@ -1,5 +1,8 @@
 """`simulate`: the jit-compiled impact loop.
 
+The loop itself lives in `_loop/` (named phases over a typed state: `state`, `context`,
+`step`, `detect`, `land`, `policies`, `program`); this module is its entry point.
+
 Design (and why it is not a loop of `diffeqsolve` calls with a `diffrax.Event`):
 
 - **One flat loop, one solver step per iteration.** Flights are integrated by Diffrax's
