@@ -1,12 +1,14 @@
 """The search for a contact inside an accepted step (see `_events.py` for the tests)."""
 
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import equinox.internal as eqxi
 import jax
 import jax.lax as lax
 import jax.numpy as jnp
+from jaxtyping import Array, Bool
 
+from .._custom_types import BoolScalar, RealScalar
 from .._events import is_candidate, locate, step_ends
 from .._geometry import FLOOR_ULPS
 from .context import LoopContext
@@ -18,13 +20,13 @@ from .step import Step
 class Detection(NamedTuple):
     """What the in-step search found in a step; only meaningful where `detecting`."""
 
-    detecting: Any  # a normally accepted step (not a landing, lane not finished)
-    event: Any  # a contact (or a release) was found: the step is retaken up to it
-    first: Any  # local time of the earliest one
-    pending: Any  # bool[m, signs]: the surfaces (and sides) met at `first`
-    touch: Any  # bool[m, signs]: tangential contacts
-    boundary: Any  # bool[m, signs]: contacts on ∂Γ
-    releasing: Any  # the event is the end of sliding
+    detecting: BoolScalar  # a normally accepted step (not a landing, lane not finished)
+    event: BoolScalar  # a contact (or a release) was found: the step is retaken up to it
+    first: RealScalar  # local time of the earliest one
+    pending: Bool[Array, "m signs"]  # the surfaces (and sides) met at `first`
+    touch: Bool[Array, "m signs"]  # tangential contacts
+    boundary: Bool[Array, "m signs"]  # contacts on ∂Γ
+    releasing: BoolScalar  # the event is the end of sliding
 
 
 def detect(ctx: LoopContext, c: LoopState, step: Step) -> Detection:

@@ -2,11 +2,14 @@
 
 from typing import Any, NamedTuple
 
+import diffrax
 import equinox.internal as eqxi
 import jax
 import jax.lax as lax
 import jax.numpy as jnp
+from jaxtyping import PyTree
 
+from .._custom_types import BoolScalar, RealScalar, State
 from .._stepping import error_or_zero
 from .context import LoopContext
 from .state import LoopState
@@ -15,16 +18,16 @@ from .state import LoopState
 class Step(NamedTuple):
     """A step [sa, sb] just taken from `c.y`, and what the controller made of it."""
 
-    sa: Any
-    sb: Any
-    s_end: Any  # local time of t1
-    y1: Any
-    interp: Any  # the step's dense interpolant, in the local clock
-    keep: Any  # accepted (and finite)
-    finite: Any  # y1 is finite
-    h_next: Any
-    solver_state: Any
-    controller_state: Any
+    sa: RealScalar
+    sb: RealScalar
+    s_end: RealScalar  # local time of t1
+    y1: State
+    interp: diffrax.AbstractLocalInterpolation  # the step's dense output, in the local clock
+    keep: BoolScalar  # accepted (and finite)
+    finite: BoolScalar  # y1 is finite
+    h_next: RealScalar
+    solver_state: PyTree[Any]
+    controller_state: PyTree[Any]
 
 
 def take_step(ctx: LoopContext, c: LoopState) -> Step:
