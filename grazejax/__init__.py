@@ -38,6 +38,9 @@ from ._linearize import saltation_matrix as saltation_matrix
 from ._linearize import scalar_gradient as scalar_gradient
 from ._linearize import variational_transition as variational_transition
 from ._linearize import w_map as w_map
+from ._loop.policies import AbstractZenoPolicy as AbstractZenoPolicy
+from ._loop.policies import ZenoStick as ZenoStick
+from ._loop.policies import ZenoStop as ZenoStop
 from ._periodic import Contacts as Contacts
 from ._periodic import Floquet as Floquet
 from ._periodic import GrazingBranches as GrazingBranches

@@ -14,7 +14,7 @@ So the choice is the user's, in Diffrax's words:
 
 Event times never need a loop's derivative: the root searches locate them without
 tangents, and one Newton step outside the searches carries the implicit-function-theorem
-tangent (see `_simulate`), identical in both modes.
+tangent (see `_loop/land.py`), identical in both modes.
 """
 
 from typing import Literal, NamedTuple

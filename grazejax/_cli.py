@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import importlib.util
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -22,6 +23,36 @@ BENCH_SCRIPTS = {
     "gradients": "bench_gradients.py",
 }
 DEFAULT_OUT = "grazejax-output"  # kept equal to grazejax._reproduce.DEFAULT_OUT
+# JAX's persistent compilation cache for `grazejax reproduce`: a folder, or "off".
+CACHE_ENV = "GRAZEJAX_COMPILATION_CACHE"
+
+
+def compilation_cache_dir() -> Path | None:
+    """Where `grazejax reproduce` keeps compiled XLA programs between runs, or None (off).
+
+    `$GRAZEJAX_COMPILATION_CACHE` if set ("off", "0" or "" turns the cache off), else
+    `$XDG_CACHE_HOME/grazejax/jax` (default `~/.cache/grazejax/jax`).
+    """
+    value = os.environ.get(CACHE_ENV)
+    if value is not None:
+        return None if value.strip().lower() in ("", "0", "off", "none") else Path(value)
+    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
+    return Path(base) / "grazejax" / "jax"
+
+
+def _enable_compilation_cache() -> None:
+    """Turn on JAX's persistent compilation cache: a second `grazejax reproduce` loads its
+    simulators instead of recompiling them (compiling is most of a short run's time).
+
+    A cache folder the user gave JAX itself (`JAX_COMPILATION_CACHE_DIR`) is kept. Not
+    for `grazejax bench`: it measures cold compile times.
+    """
+    import jax
+
+    path = compilation_cache_dir()
+    if path is None or jax.config.jax_compilation_cache_dir is not None:
+        return
+    jax.config.update("jax_compilation_cache_dir", str(path))
 
 
 def _figure_help() -> str:
@@ -53,7 +84,10 @@ def _build_parser() -> argparse.ArgumentParser:
             "grazing points', as PNG files, plus report.md and report.json (starts,\n"
             "impacts, final states, checks of the paper's printed values).\n\n"
             f"Output folder: ./{DEFAULT_OUT}/ in the current directory unless --out is given.\n"
-            "All figures take about a minute on a laptop CPU, the claims table 2-3 more."
+            "All figures take about a minute on a laptop CPU, the claims table 2-3 more.\n\n"
+            "Compiled programs are kept between runs in ~/.cache/grazejax/jax (JAX's\n"
+            f"persistent compilation cache): set {CACHE_ENV} to another folder, or to\n"
+            "'off' to compile afresh."
         ),
         epilog=_figure_help()
         + "\n\nAn example name (orbex2, exnonaxial, ex1dof, smalldisc) selects all its figures."
@@ -171,6 +205,7 @@ def _reproduce(ns, parser) -> int:
     if ns.list:
         print(_figure_help())
         return 0
+    _enable_compilation_cache()
     try:
         names = rp.resolve_names(ns.only)
         out = rp.prepare_output(ns.out if ns.out is not None else rp.DEFAULT_OUT)

@@ -1,7 +1,7 @@
 """Event detection on one accepted step: crossings, in-step dips, the restart guard.
 
 Everything here works on a single solver step [sa, sb] of the *local clock* s (time since
-the last impact, see `_simulate.py`), through the step's dense interpolant P(s). For each
+the last impact, see `_loop/state.py`), through the step's dense interpolant P(s). For each
 surface the gap along the step is g(s) = d·Φ(t(s), P(s)), with d = +1 for the usual
 "impact when Φ reaches 0 from above" and d = −1 for the mirrored test used in backward
 time, where Γ̃ may be met from either side.

@@ -2,7 +2,7 @@
 
 A vmapped while loop runs until its slowest lane finishes (docs/design.md, *Batches*): a batch that mixes
 2-impact and 200-impact lanes costs as if every lane had 200. The pool instead runs
-`Program.step` (one solver step, see `_simulate.build_program`) on `width` lane *slots*, and
+`Program.step` (one solver step, see `_loop.program`) on `width` lane *slots*, and
 whenever enough slots have finished it writes their results into the output rows of their
 lanes and loads the next queued lanes into those slots. All of it is one XLA program: a
 `lax.while_loop` of refills around a `lax.while_loop` of steps, with dynamic gathers and
@@ -57,7 +57,7 @@ def run_pool(
 
     **Arguments:**
 
-    - `program`: a `_simulate.Program` (init, step, running, finish of one lane).
+    - `program`: a `_loop.program.Program` (init, step, running, finish of one lane).
     - `x0s`, `args`: the lanes' inputs; batched leaves carry the lanes along axis 0 as
       given by `in_axes = (x0 axis, args axes)` (`0` or `None`, as for `jax.vmap`).
     - `valid`: bool[lanes]; the valid lanes come first (the rest is padding, never run).

@@ -16,7 +16,7 @@ lanes needs:
   of `pool_size` lane slots (`_pool.py`): whenever an eighth of the slots have finished, their
   results are written out and the next lanes of the queue are loaded into them; at the end
   the last few running lanes move to a pool an eighth as wide. The pool runs the very loop
-  of `simulate` (`_simulate.build_program`: same `init`, same `step`, same `finish`), so a
+  of `simulate` (`_loop.program.build_program`: same `init`, same `step`, same `finish`), so a
   lane computes what `simulate` computes for it alone, whichever lanes share the pool.
   `balance="none"` is plain `jax.vmap(simulate)` per chunk, sharded with a `NamedSharding`.
   `benchmarks/bench_sweep.py` measures the gain (see benchmarks/README.md).

@@ -1,9 +1,13 @@
 import gc
+import os
 
 import jax
 import pytest
 
 jax.config.update("jax_enable_x64", True)
+# `grazejax reproduce` (called in-process by test_reproduce) turns on JAX's persistent
+# compilation cache under the user's cache folder; tests run cold and write nothing there.
+os.environ.setdefault("GRAZEJAX_COMPILATION_CACHE", "off")
 
 # Every program XLA compiles for the CPU keeps its code in memory mappings of its own, and
 # Linux caps a process at vm.max_map_count (65530 by default) of them. The whole suite

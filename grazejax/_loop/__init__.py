@@ -1,0 +1,11 @@
+"""The impact loop as named phases over one typed state.
+
+- `state.py`: `LoopState`, everything one lane carries from one solver step to the next.
+- `context.py`: `LoopContext`, what every lane of one configuration shares (pieces, clock,
+  tolerances, solver, controller), and the per-surface tests built on it.
+- `step.py`: one solver step and the step-size controller's verdict on it.
+- `detect.py`: the search for a contact inside an accepted step.
+- `land.py`: the landing step: Newton correction of the event time, jumps, impact log.
+- `policies.py`: what happens at a Zeno accumulation or a sticking contact.
+- `program.py`: `init`, `step`, `running`, `finish` of one lane, as a `Program`.
+"""

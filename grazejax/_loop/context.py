@@ -1,0 +1,172 @@
+"""`LoopContext`: what every lane of one configuration shares.
+
+Built once per `build_program` call (at trace time) and read by every phase; nothing in it
+changes while the loop runs. Its per-surface helpers are static Python loops over the pieces.
+"""
+
+from collections.abc import Callable
+from typing import Any
+
+import diffrax
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+from .._adjoint import LoopKinds
+from .._custom_types import RealScalar, VectorField
+from .._geometry import Piece, contact_frame, gap_rates, is_tangential, project_to_contact
+from .._status import ImpactKind
+from .policies import AbstractZenoPolicy, sliding_field
+
+
+class LoopContext(eqx.Module):
+    """The static data of one configuration of the loop, shared by all its phases."""
+
+    vector_field: VectorField  # f, in the scene's own time
+    pieces: tuple[Piece, ...]  # the surfaces as the loop sees them (images when backward)
+    impact_kinds: tuple[ImpactKind, ImpactKind, ImpactKind]  # α, β, γ (or α′, β′, γ′)
+    sigma: int  # +1 forward, -1 backward
+    t0: RealScalar
+    t1: RealScalar
+    ts: Float[Array, " saves"] | None  # saveat times, or None: no dense output compiled
+    dtype: Any
+    n: int  # state dimension
+    m: int  # number of surface pieces
+    max_signs: int  # the most sides of one piece that can be hit (1 or 2)
+    eps: float
+    tol_r: Any  # the controller's tolerances: the state is known to them only
+    tol_a: Any
+    solver: diffrax.AbstractSolver
+    controller: Any  # the loop's step-size controller (see `_stepping.loop_controller`)
+    has_error: bool  # the solver has an embedded error estimate
+    term: diffrax.ODETerm  # the field in the loop's clock (see `loop_field`)
+    error_order: Any
+    kinds: LoopKinds
+    policy: AbstractZenoPolicy
+    # Sliding is compiled in only when asked for (ZenoStick) and there is a surface.
+    sticky: bool
+    dt0: Any
+    max_impacts: int
+    max_steps: int
+    zeno_rtol: float
+    zero: RealScalar
+    nan: RealScalar
+
+    @property
+    def mask_shape(self) -> tuple[int, int]:
+        return (self.m, self.max_signs)
+
+    def state_tol(self, x):
+        # The state is only known to the solver's tolerance: piece boundaries (`where`) are
+        # resolved to within ten times that, so a crossing exactly on ∂Γ is not lost.
+        return 10 * (self.tol_a + self.tol_r * jnp.abs(x))
+
+    def abs_time(self, s, t_hi, t_lo):
+        """The loop runs in local time s >= 0; absolute time is t = t_hi + t_lo + σ s."""
+        return loop_time(self.sigma, s, t_hi, t_lo)
+
+    def s_end_of(self, t_hi, t_lo):
+        return self.sigma * ((self.t1 - t_hi) - t_lo)
+
+    def h_min_at(self, t_abs, time_scale):
+        """Below h_min a step no longer moves t: the controller has given up."""
+        return 16 * self.eps * jnp.maximum(jnp.abs(t_abs), time_scale)
+
+    # ---- per-surface helpers ----
+
+    def contact_geometry(self, piece, t, y, args_):
+        return contact_frame(piece.gap, piece.jump, self.vector_field, t, y, args_)
+
+    def project_onto_contact(self, piece, t, y, args_):
+        return project_to_contact(piece.gap, piece.jump, self.vector_field, t, y, args_)
+
+    def gap_along(self, piece, sign, s_to_y, t_hi, t_lo, args_):
+        def g(s):
+            return sign * piece.gap(self.abs_time(s, t_hi, t_lo), s_to_y(s), args_)
+
+        return g
+
+    def slopes_at(self, piece, sign, s, y, t_hi, t_lo, args_):
+        """g, ġ, g̈ along the true vector field at (s, y), in the loop's clock."""
+        return gap_rates(
+            piece.gap, self.vector_field, self.abs_time(s, t_hi, t_lo), y, args_, sign,
+            self.sigma,
+        )
+
+    def sliding_pull(self, stick, s, y, t_hi, t_lo, args_):
+        """Φ̈ of the free flow on the surface being slid on: the state leaves when ≥ 0."""
+        rate = jnp.zeros((), self.dtype)
+        for i, piece in enumerate(self.pieces):
+            _, _, gdd = self.slopes_at(piece, 1, s, y, t_hi, t_lo, args_)
+            rate = rate + jnp.where(stick[i], gdd, 0.0)
+        return rate
+
+    def on_surface(self, piece, t, y, args_, x_scale=None, step_ulps=0.0):
+        floor = piece.floor(t, y, args_, x_scale)
+        if piece.signs:  # the step-length term, with the slope along the true field
+            sigma, f = self.sigma, self.vector_field
+            slope = jax.jvp(
+                lambda tt, yy: piece.gap(tt, yy, args_), (t, y),
+                (sigma * jnp.ones_like(t), sigma * f(t, y, args_)),
+            )[1]
+            floor = floor + step_ulps * jax.lax.stop_gradient(jnp.abs(slope))
+        g = piece.gap(t, y, args_)
+        return (jnp.abs(g) <= floor) & jnp.isfinite(g), floor
+
+    def contact_tests(self, t_hi, t_lo, y, args_, x_scale, step_ulps=0.0):
+        """Per surface, at a restart: on it (guard the flight's first step), stuck on it,
+        and pushed into it by the free flow.
+
+        Stuck is a tangential restart with the flow pushing in: the state would slide into
+        Φ < 0 from rest (e.g. restitution 0). That is sticking, the end of a Zeno
+        sequence; never tunnel.
+        """
+        t = t_hi + t_lo
+        restart, stuck, pushed = [], [], []
+        for piece in self.pieces:
+            on, floor = self.on_surface(piece, t, y, args_, x_scale, step_ulps)
+            restart.append(on)
+            stuck_i = pushed_i = jnp.array(False)
+            for sign in piece.signs:
+                _, gd, gdd = self.slopes_at(piece, sign, jnp.zeros_like(t), y, t_hi, t_lo, args_)
+                tangential = is_tangential(gd, gdd, floor)
+                stuck_i = stuck_i | (on & tangential & (gdd < 0))
+                pushed_i = pushed_i | (on & (gdd < 0))
+            stuck.append(stuck_i)
+            pushed.append(pushed_i)
+        as_mask = lambda v: jnp.array(v, dtype=bool).reshape((self.m,))  # noqa: E731
+        return as_mask(restart), as_mask(stuck), as_mask(pushed)
+
+    def starts_inside(self, t, x, args_, x_scale):
+        """x0 strictly inside an impenetrable piece (beyond its contact floor)."""
+        inside_any = jnp.array(False)
+        for piece in self.pieces:
+            if piece.check_jump_side:
+                floor = piece.floor(t, x, args_, x_scale)
+                in_piece, _ = piece.inside(t, x, args_, self.state_tol)
+                inside_any = inside_any | ((piece.gap(t, x, args_) < -floor) & in_piece)
+        return inside_any
+
+
+def loop_time(sigma, s, t_hi, t_lo):
+    return t_hi + (t_lo + sigma * s)
+
+
+def loop_field(vector_field, pieces, sigma, sticky) -> Callable:
+    """The field the solver integrates: σ·f in the local clock s, with the sliding force
+    added while a lane slides (`targs = (args, t_hi, t_lo, stick)`).
+
+    A plain function (not a method of `LoopContext`): the solver's term holds it, and a
+    bound method would make the whole context part of the term's pytree.
+    """
+
+    def local_field(s, y, targs):
+        args_, t_hi, t_lo, stick = targs
+        t = loop_time(sigma, s, t_hi, t_lo)
+        free = vector_field(t, y, args_)
+        if sticky:
+            free = sliding_field(vector_field, pieces, t, y, args_, stick, free)
+        return sigma * free
+
+    return local_field

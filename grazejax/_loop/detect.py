@@ -1,0 +1,123 @@
+"""The search for a contact inside an accepted step (see `_events.py` for the tests)."""
+
+from typing import NamedTuple
+
+import equinox.internal as eqxi
+import jax
+import jax.lax as lax
+import jax.numpy as jnp
+from jaxtyping import Array, Bool
+
+from .._custom_types import BoolScalar, RealScalar
+from .._events import is_candidate, locate, step_ends
+from .._geometry import FLOOR_ULPS
+from .context import LoopContext
+from .policies import locate_release
+from .state import LoopState
+from .step import Step
+
+
+class Detection(NamedTuple):
+    """What the in-step search found in a step; only meaningful where `detecting`."""
+
+    detecting: BoolScalar  # a normally accepted step (not a landing, lane not finished)
+    event: BoolScalar  # a contact (or a release) was found: the step is retaken up to it
+    first: RealScalar  # local time of the earliest one
+    pending: Bool[Array, "m signs"]  # the surfaces (and sides) met at `first`
+    touch: Bool[Array, "m signs"]  # tangential contacts
+    boundary: Bool[Array, "m signs"]  # contacts on ∂Γ
+    releasing: BoolScalar  # the event is the end of sliding
+
+
+def detect(ctx: LoopContext, c: LoopState, step: Step) -> Detection:
+    sa, sb, y1 = step.sa, step.sb, step.y1
+    detecting = step.keep & ~c.landing & ~c.done
+    ends = _step_ends(ctx, c, step)
+    candidate = jnp.array(False)
+    for i, row in enumerate(ends):
+        for _, e in row:
+            crossing, dip = is_candidate(e)
+            # A sliding state is on its surface: no contact with it is searched for.
+            candidate = candidate | ((crossing | dip) & ~c.stick[i])
+    candidate = detecting & candidate
+
+    def search():
+        return _search(ctx, c, step, ends)
+
+    def no_search():
+        return _nothing_found(ctx)
+
+    if ctx.m > 0:
+        found, times, touch, boundary = lax.cond(eqxi.unvmap_any(candidate), search, no_search)
+    else:
+        found, times, touch, boundary = no_search()
+    found = found & candidate & ~c.stick[:, None]
+    times = jnp.where(found, times, jnp.inf)
+    event = jnp.any(found)
+    # (A scene without surfaces is a plain ODE solve: no contact, ever.)
+    first = jax.lax.stop_gradient(jnp.min(times)) if ctx.m > 0 else jnp.array(jnp.inf, ctx.dtype)
+    releasing = jnp.array(False)
+    if ctx.sticky:
+        release, t_release = locate_release(
+            ctx, c, sa, sb, y1, step.interp.evaluate, detecting
+        )
+        releasing = release & (t_release <= first)
+        first = jnp.minimum(first, t_release)
+        event = event | release
+    simultaneous = 1e3 * ctx.eps * (jnp.abs(first) + (sb - sa))
+    pending = found & (times <= first + simultaneous) & ~releasing
+    return Detection(detecting, event, first, pending, touch, boundary, releasing)
+
+
+def _step_ends(ctx: LoopContext, c: LoopState, step: Step):
+    """Per piece and side: the gap along the step's interpolant, and its `StepEnds`."""
+    sa, sb, y1, args_ = step.sa, step.sb, step.y1, c.args
+    ends = []
+    for i, piece in enumerate(ctx.pieces):
+        row = []
+        for sign in piece.signs:
+            g = ctx.gap_along(piece, sign, step.interp.evaluate, c.t_hi, c.t_lo, args_)
+            g_a = sign * piece.gap(ctx.abs_time(sa, c.t_hi, c.t_lo), c.y, args_)
+            g_b = sign * piece.gap(ctx.abs_time(sb, c.t_hi, c.t_lo), y1, args_)
+            row.append((g, step_ends(g, sa, sb, c.restart[i], g_a, g_b)))
+        ends.append(row)
+    return ends
+
+
+def _search(ctx: LoopContext, c: LoopState, step: Step, ends):
+    """Locate the contact of every piece and side in the step: `(found, times, touch,
+    boundary)`, each [m, signs]."""
+    sa, sb, y1, args_ = step.sa, step.sb, step.y1, c.args
+    y_of = step.interp.evaluate
+    mask_shape = ctx.mask_shape
+    found = jnp.zeros(mask_shape, bool)
+    times = jnp.full(mask_shape, jnp.inf, ctx.dtype)
+    touch = jnp.zeros(mask_shape, bool)
+    boundary = jnp.zeros(mask_shape, bool)
+    for i, piece in enumerate(ctx.pieces):
+        for k, (g, e) in enumerate(ends[i]):
+            x_scale = jnp.maximum(c.flight_scale, jnp.abs(y1))
+            # Round-off of a step also grows with its length: add h·max|ġ| (a
+            # long step of an exactly integrated flow carries ~100s of ulps).
+            step_term = FLOOR_ULPS * ctx.eps * (sb - sa) * jnp.maximum(
+                jnp.abs(e.slope_start), jnp.abs(e.slope_end)
+            )
+            floor = piece.floor(ctx.abs_time(sb, c.t_hi, c.t_lo), y1, args_, x_scale)
+            floor = floor + jax.lax.stop_gradient(step_term)
+            contact = locate(g, sa, sb, e, c.restart[i], floor)
+            t_abs = ctx.abs_time(contact.time, c.t_hi, c.t_lo)
+            inside, on_boundary = piece.inside(t_abs, y_of(contact.time), args_, ctx.state_tol)
+            ok = contact.found & inside
+            found = found.at[i, k].set(ok)
+            times = times.at[i, k].set(jnp.where(ok, contact.time, jnp.inf))
+            touch = touch.at[i, k].set(contact.touch)
+            boundary = boundary.at[i, k].set(on_boundary)
+    return found, times, touch, boundary
+
+
+def _nothing_found(ctx: LoopContext):
+    mask_shape = ctx.mask_shape
+    return (
+        jnp.zeros(mask_shape, bool), jnp.full(mask_shape, jnp.inf, ctx.dtype),
+        jnp.zeros(mask_shape, bool), jnp.zeros(mask_shape, bool),
+    )

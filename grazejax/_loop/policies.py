@@ -1,0 +1,206 @@
+"""What the loop does at a Zeno accumulation or a sticking contact: the policy classes and
+the sliding phase of `ZenoStick` (compiled in only when that policy is chosen)."""
+
+from typing import TYPE_CHECKING, ClassVar
+
+import equinox as eqx
+import equinox.internal as eqxi
+import jax
+import jax.lax as lax
+import jax.numpy as jnp
+
+from .._geometry import contact_frame
+from .._roots import bracketed_root, safe_divide
+from .._status import ImpactKind, Status
+from .state import write_log
+
+if TYPE_CHECKING:
+    from .context import LoopContext
+    from .state import LoopState
+
+
+class AbstractZenoPolicy(eqx.Module):
+    """What [`grazejax.simulate`][] does at a Zeno accumulation (impacts accumulating at a
+    finite time) or at a tangential restart pushed into a surface (e.g. restitution 0).
+
+    Pass an instance as `simulate(..., zeno=...)` or `sweep(..., zeno=...)`; the strings
+    `"stop"` and `"stick"` mean [`grazejax.ZenoStop`][] and [`grazejax.ZenoStick`][].
+    """
+
+    # Whether the sliding phase is compiled into the loop (static structure, not a number).
+    slides: eqx.AbstractClassVar[bool]
+
+
+class ZenoStop(AbstractZenoPolicy):
+    """End the run with `Status.ZENO` (the default).
+
+    The predicted accumulation time is in `Solution.zeno_time`.
+    """
+
+    slides: ClassVar[bool] = False
+
+
+class ZenoStick(AbstractZenoPolicy):
+    """Slide on the surface under the contact force the free flow calls for, and release
+    when the free flow pulls away (Φ̈ ≥ 0); both moments are logged (`ImpactKind.STICK`,
+    `ImpactKind.RELEASE`). Forward time only. See *Sticking* in [`grazejax.simulate`][].
+
+    **Example:**
+
+    ```python
+    import grazejax as gj
+    from grazejax.examples import vibrating_table
+
+    args = {"g": 9.81, "e": 0.5, "A": 0.05, "omega": 10.0}
+    sol = gj.simulate(vibrating_table(), [0.3, 0.0], 0.0, 3.0, args, zeno=gj.ZenoStick())
+    ```
+    """
+
+    slides: ClassVar[bool] = True
+
+
+_BY_NAME = {"stop": ZenoStop, "stick": ZenoStick}
+
+
+def as_zeno_policy(zeno) -> AbstractZenoPolicy:
+    """A policy from a policy or its name (`"stop"`, `"stick"`: kept for existing code)."""
+    if isinstance(zeno, AbstractZenoPolicy):
+        return zeno
+    if isinstance(zeno, str) and zeno in _BY_NAME:
+        return _BY_NAME[zeno]()
+    raise ValueError(
+        f"zeno must be 'stop' or 'stick' (or grazejax.ZenoStop(), grazejax.ZenoStick()), "
+        f"got {zeno!r}"
+    )
+
+
+# --------------------------------------------------------------------------------------
+# The sliding phase (ZenoStick)
+# --------------------------------------------------------------------------------------
+
+
+def sliding_field(vector_field, pieces, t, y, args_, stick, free):
+    """f + λd on the surfaces slid on (see *Sticking* in `simulate`); the constrained field
+    is evaluated only while some lane slides."""
+
+    def constrained():
+        out = free
+        for i, piece in enumerate(pieces):
+            _, _, gdd, _, grad_gd, d = contact_frame(piece.gap, piece.jump, vector_field, t, y, args_)
+            gain = jnp.dot(grad_gd, d)  # d(Φ̈)/dλ
+            force = -safe_divide(gdd, gain, stick[i] & (gain != 0)) * d
+            out = out + jnp.where(stick[i], force, 0.0)
+        return out
+
+    return lax.cond(eqxi.unvmap_any(jnp.any(stick)), constrained, lambda: free)
+
+
+def stick_at_start(ctx: "LoopContext", x0, args, stuck0, status0, zeno_time0, log):
+    """A start at rest on a surface, pushed in: sliding from t0 (or ZENO at t0 if on two
+    surfaces)."""
+    t0 = ctx.t0
+    stuck_any = jnp.any(stuck0)
+    starts = stuck_any & (jnp.sum(stuck0) == 1)
+    stick0 = stuck0 & starts
+    x_on = x0
+    for i, piece in enumerate(ctx.pieces):
+        x_on = jnp.where(stick0[i], ctx.project_onto_contact(piece, t0, x0, args), x_on)
+    log = write_log(log, 0, starts, t0, x0, x_on, jnp.argmax(stick0), int(ImpactKind.STICK))
+    num_impacts0 = starts.astype(jnp.array(0).dtype)
+    status0 = jnp.where(stuck_any & ~starts, int(Status.ZENO), status0)
+    zeno_time0 = jnp.where(stuck_any, t0, zeno_time0)
+    return x_on, stick0, log, num_impacts0, status0, zeno_time0
+
+
+def locate_release(ctx: "LoopContext", c: "LoopState", sa, sb, y1, y_of, detecting):
+    """The end of sliding in this step: the free flow's Φ̈ on the sliding surface reaches
+    0 from below. Returns `(release, t_release)`: found in the step, and its local time."""
+    args_ = c.args
+
+    def pull(s_, y_):
+        return ctx.sliding_pull(c.stick, s_, y_, c.t_hi, c.t_lo, args_)
+
+    pull_a, pull_b = pull(sa, c.y), pull(sb, y1)
+    release = detecting & jnp.any(c.stick) & (pull_b >= 0)
+
+    def bracket():
+        # bracketed_root wants f(lo) > 0 >= f(hi): search the sign change of −Φ̈;
+        # `hi` is the first point at or past it, so the state leaves pulled away.
+        lo = jnp.where(release & (pull_a < 0), sa, sb)
+        _, hi = bracketed_root(lambda s_: -pull(s_, y_of(s_)), lo, sb, -pull_a, -pull_b)
+        return hi
+
+    t_release = lax.cond(eqxi.unvmap_any(release), bracket, lambda: sb)
+    t_release = jax.lax.stop_gradient(jnp.where(release, t_release, jnp.inf))
+    return release, t_release
+
+
+def keep_sliding(ctx: "LoopContext", c: "LoopState", lands, t_event, x_post, restart, stuck_each):
+    """Sliding at the post-impact state: a release is not a new sticking, and a lane that
+    slid on one surface while it hit another keeps sliding if not thrown off."""
+    args_ = c.args
+    # A release lands on a tangential state with Φ̈ ≈ 0: not a new sticking.
+    released = c.stick & c.releasing & lands
+    stuck_each = stuck_each & ~released
+    restart = restart | released
+    # An impact on another surface while sliding: the state is still on the surface
+    # it slid on, up to the sliding flow's drift (solver tolerance, not round-off,
+    # so the on-surface floor cannot tell); it keeps sliding if not thrown off it.
+    was_on = c.stick & lands & ~c.releasing
+    for i, piece in enumerate(ctx.pieces):
+        _, gd, gdd, _, grad_gd, _ = ctx.contact_geometry(piece, t_event, x_post, args_)
+        drift = jnp.sum(jnp.abs(grad_gd) * ctx.state_tol(x_post))
+        stays = was_on[i] & (gd <= drift) & (gdd < 0)
+        stuck_each = stuck_each.at[i].set(stuck_each[i] | stays)
+    restart = restart | was_on
+    return restart, stuck_each, released
+
+
+def zeno_test(ctx: "LoopContext", c: "LoopState", s_event, t_event, stuck, applied_any):
+    """Zeno: geometric shrinking of the inter-impact times. Returns
+    `(zeno, intervals, zeno_time)`."""
+    interval = jax.lax.stop_gradient(s_event)
+    intervals = jnp.concatenate([c.intervals[1:], interval[None]])
+    d0, d1, d2 = intervals[0], intervals[1], intervals[2]
+    r_prev = safe_divide(d1, d0, d0 > 0)
+    r_last = safe_divide(d2, d1, d1 > 0)
+    geometric = (r_last > 0) & (r_last < 1) & (jnp.abs(r_last - r_prev) <= 0.05 * r_last)
+    remaining = safe_divide(d2 * r_last, 1 - r_last, r_last < 1)
+    elapsed = jnp.abs(t_event - ctx.t0)
+    zeno = geometric & (remaining <= ctx.zeno_rtol * elapsed)
+    t_resolution = ctx.h_min_at(t_event, c.time_scale)
+    zeno = zeno | (interval <= t_resolution) & (c.num_impacts > 0)
+    zeno = zeno & applied_any  # (a release is not an impact)
+    zeno_time = jnp.where(
+        zeno, t_event + ctx.sigma * remaining, jnp.where(stuck, t_event, c.zeno_time)
+    )
+    return zeno, intervals, zeno_time
+
+
+def start_or_end_sliding(
+    ctx: "LoopContext", c: "LoopState", lands, t_event, x_post, zeno, stuck, stuck_each,
+    pushed_in, applied, applied_any, released, intervals,
+):
+    """Slide on the surface just hit (or found stuck) if the free flow pushes into it; on
+    two surfaces at once there is no sliding rule: stop (ZENO).
+
+    Returns `(zeno, stick, x_post, event_row, intervals)`; `event_row` is the log row of a
+    start (STICK) or end (RELEASE) of sliding.
+    """
+    args_ = c.args
+    want = stuck_each | (zeno & jnp.array(applied) & pushed_in)
+    starts = lands & applied_any & (jnp.sum(want) == 1)
+    zeno = (zeno | stuck) & ~starts
+    stick = jnp.where(starts, want, jnp.where(lands & (c.releasing | applied_any), False, c.stick))
+    x_moved = x_post
+    for i, piece in enumerate(ctx.pieces):
+        on_m = ctx.project_onto_contact(piece, t_event, x_post, args_)
+        x_moved = jnp.where((starts & want[i]) | released[i], on_m, x_moved)
+    event_row = (
+        starts | jnp.any(released), x_post, x_moved,
+        jnp.argmax(want | released),
+        jnp.where(starts, int(ImpactKind.STICK), int(ImpactKind.RELEASE)),
+    )
+    # A new sequence of impacts after sliding: forget the old intervals.
+    intervals = jnp.where(starts | c.releasing, jnp.nan, intervals)
+    return zeno, stick, x_moved, event_row, intervals

@@ -1,0 +1,371 @@
+"""The loop of one configuration as four functions of one lane's state: `Program`."""
+
+import functools
+from collections.abc import Callable
+
+import diffrax
+import equinox as eqx
+import jax
+import jax.lax as lax
+import jax.numpy as jnp
+
+from .._adjoint import loop_kinds
+from .._geometry import backward_piece, forward_piece
+from .._scene import Scene
+from .._solution import Solution
+from .._status import ImpactKind, Status
+from .._stepping import loop_controller
+from .context import LoopContext, loop_field
+from .detect import Detection, detect
+from .land import land_if_due
+from .policies import as_zeno_policy, stick_at_start
+from .state import LoopState
+from .step import Step, take_step
+
+
+class Program(eqx.Module):
+    """The impact loop of one configuration, as functions of one lane's loop state.
+
+    `simulate` is `finish(while_loop(any running, step, init(x0, args)))`. `sweep` runs the
+    same functions on a pool of lanes that it refills as lanes finish, so every lane
+    computes exactly what `simulate` computes for it alone.
+    """
+
+    init: Callable = eqx.field(static=True)  # (x0, args) -> state
+    step: Callable = eqx.field(static=True)  # state -> state: one solver step (frozen when done)
+    running: Callable = eqx.field(static=True)  # state -> bool: not finished, not out of steps
+    finish: Callable = eqx.field(static=True)  # state -> Solution
+
+
+def build_program(
+    scene: Scene, checked, *, solver, rtol, atol, stepsize_controller, dt0, max_impacts,
+    max_steps, zeno_rtol, zeno="stop", adjoint=None,
+) -> Program:
+    """The loop functions for `scene`, with inputs checked by `validate_inputs`.
+
+    `checked.x0` is only a template (shape and dtype); t0, t1 and saveat are shared by
+    every lane that runs the program.
+    """
+    ctx = build_context(
+        scene, checked, solver=solver, rtol=rtol, atol=atol,
+        stepsize_controller=stepsize_controller, dt0=dt0, max_impacts=max_impacts,
+        max_steps=max_steps, zeno_rtol=zeno_rtol, zeno=zeno, adjoint=adjoint,
+    )
+    # (functools.partial, not bound methods: `Program`'s static fields hash by identity.)
+    return Program(
+        init=functools.partial(init, ctx), step=functools.partial(step, ctx),
+        running=functools.partial(running, ctx), finish=functools.partial(finish, ctx),
+    )
+
+
+def build_context(
+    scene: Scene, checked, *, solver, rtol, atol, stepsize_controller, dt0, max_impacts,
+    max_steps, zeno_rtol, zeno, adjoint,
+) -> LoopContext:
+    policy = as_zeno_policy(zeno)
+    if policy.slides and checked.sigma < 0:
+        raise ValueError(
+            "zeno='stick' is forward time only: a backward run cannot tell where a sliding "
+            "phase began (the release map is not invertible)"
+        )
+    sigma = checked.sigma
+    dtype = checked.x0.dtype
+
+    if solver is None:
+        solver = diffrax.Tsit5()
+    # Diffrax's solvers with an embedded error estimate are its adaptive solvers (Euler and
+    # the stochastic ones are not).
+    has_error = isinstance(solver, diffrax.AbstractAdaptiveSolver)
+    controller = loop_controller(
+        stepsize_controller, solver, rtol=rtol, atol=atol, dt0=dt0, has_error_estimate=has_error
+    )
+    solver = _with_implicit_tolerances(solver, controller)
+    # Runge-Kutta stages default to a checkpointed loop (custom_vjp), which forward-mode
+    # autodiff cannot enter; a plain lax loop supports jvp, jacfwd and vmap. The adjoint
+    # decides (see `_adjoint`); a kind the user set on the solver is kept.
+    kinds = loop_kinds(adjoint)
+    if getattr(solver, "scan_kind", "lax") is None and kinds.stages is not None:
+        solver = eqx.tree_at(
+            lambda s: s.scan_kind, solver, kinds.stages, is_leaf=lambda x: x is None
+        )
+
+    f = scene.vector_field
+    if sigma > 0:
+        pieces = tuple(forward_piece(s) for s in scene.surfaces)
+        impact_kinds = (ImpactKind.ALPHA, ImpactKind.BETA, ImpactKind.GAMMA)
+    else:
+        pieces = tuple(backward_piece(s, f) for s in scene.surfaces)
+        impact_kinds = (ImpactKind.ALPHA_PRIME, ImpactKind.BETA_PRIME, ImpactKind.GAMMA_PRIME)
+    m = len(pieces)
+    sticky = policy.slides and m > 0
+    term = diffrax.ODETerm(loop_field(f, pieces, sigma, sticky))
+    return LoopContext(
+        vector_field=f, pieces=pieces, impact_kinds=impact_kinds, sigma=sigma,
+        t0=checked.t0, t1=checked.t1, ts=checked.ts, dtype=dtype, n=checked.x0.shape[0],
+        m=m, max_signs=max((len(p.signs) for p in pieces), default=1),
+        eps=jnp.finfo(dtype).eps,
+        tol_r=getattr(controller, "rtol", rtol), tol_a=getattr(controller, "atol", atol),
+        solver=solver, controller=controller, has_error=has_error, term=term,
+        error_order=solver.error_order(term), kinds=kinds, policy=policy, sticky=sticky,
+        dt0=dt0, max_impacts=max_impacts, max_steps=max_steps, zeno_rtol=zeno_rtol,
+        zero=jnp.zeros((), dtype), nan=jnp.array(jnp.nan, dtype),
+    )
+
+
+# --------------------------------------------------------------------------------------
+# init
+# --------------------------------------------------------------------------------------
+
+
+def init(ctx: LoopContext, x0, args) -> LoopState:
+    t0, t1, m, n, dtype, zero = ctx.t0, ctx.t1, ctx.m, ctx.n, ctx.dtype, ctx.zero
+    solver, controller, term = ctx.solver, ctx.controller, ctx.term
+    targs0 = (args, t0, jnp.zeros_like(t0), jnp.zeros((m,), bool))
+    s_end0 = ctx.s_end_of(t0, jnp.zeros_like(t0))
+    tnext, controller_state0 = controller.init(
+        term, zero, s_end0, x0, ctx.dt0, targs0, solver.func, ctx.error_order
+    )
+    # Step sizes carry no derivative: the flow's derivative does not depend on how it
+    # was stepped, and the controller's choice depends on the state through an error
+    # norm that is not differentiable where the error is zero (from x0 = 0 the step
+    # size's tangent leaked into jacfwd of x'' = −x over 2π: [[−16, −3.2], [3.2, −16]]
+    # instead of the identity). The end of the run (t1) and the event times keep theirs.
+    h0 = jax.lax.stop_gradient(jnp.minimum(tnext, s_end0))
+    solver_state0 = solver.init(term, zero, h0, x0, targs0)
+    time_scale = jnp.maximum(jnp.abs(t0), 1e3 * jnp.abs(h0))
+    time_scale = jnp.maximum(time_scale, jnp.where(jnp.isfinite(t1), jnp.abs(t1), 0.0))
+    # At t0 there is no flight history to scale round-off by: use ‖x0‖∞ for every
+    # coordinate, so that a start from a logged post-impact state (x1 = 2e-32 on a wall
+    # at x1 = 0, moving in) counts as on the surface and does not re-trigger.
+    x0_scale = jnp.full_like(x0, jnp.max(jnp.abs(x0)))
+    restart0, stuck0, _ = ctx.contact_tests(t0, jnp.zeros_like(t0), x0, args, x0_scale)
+    # A start at rest on a surface, pushed in: with ZenoStick, sliding from t0 (or
+    # ZENO at t0 if on two surfaces). With ZenoStop the flight simply starts, into Φ < 0
+    # (the paper's setting: Φ < 0 is not forbidden, only met from above).
+    status0 = jnp.where(
+        ctx.starts_inside(t0, x0, args, x0_scale), int(Status.BAD_START), int(Status.SUCCESS)
+    )
+    zeno_time0 = ctx.nan
+    stick0 = jnp.zeros((m,), bool)
+    log = (
+        jnp.full((ctx.max_impacts,), jnp.nan, dtype),
+        jnp.full((ctx.max_impacts, n), jnp.nan, dtype),
+        jnp.full((ctx.max_impacts, n), jnp.nan, dtype),
+        jnp.full((ctx.max_impacts,), -1),
+        jnp.full((ctx.max_impacts,), int(ImpactKind.NONE)),
+    )
+    num_impacts0 = jnp.array(0)
+    if ctx.sticky:
+        x0, stick0, log, num_impacts0, status0, zeno_time0 = stick_at_start(
+            ctx, x0, args, stuck0, status0, zeno_time0, log
+        )
+    if ctx.ts is not None:
+        save_xs0 = jnp.full((ctx.ts.shape[0], n), jnp.nan, dtype)
+        save_index0 = jnp.array(0)
+    else:
+        save_xs0 = save_index0 = None
+    finite0 = (
+        jnp.all(jnp.isfinite(x0)) & _tree_all_finite(args) & jnp.isfinite(t0) & ~jnp.isnan(t1)
+    )
+    mask_shape = ctx.mask_shape
+    return LoopState(
+        args=args, time_scale=time_scale, s=zero, t_hi=t0, t_lo=jnp.zeros_like(t0), y=x0,
+        h=h0, solver_state=solver_state0, controller_state=controller_state0,
+        # (sliding from t0 changes the field the solver's first stage was built with)
+        made_jump=jnp.any(stick0), restart=restart0, flight_scale=jnp.abs(x0),
+        landing=jnp.array(False), target=zero,
+        pending=jnp.zeros(mask_shape, bool), touch=jnp.zeros(mask_shape, bool),
+        boundary=jnp.zeros(mask_shape, bool), h_after=h0,
+        num_impacts=num_impacts0,
+        log_t=log[0], log_pre=log[1], log_post=log[2], log_surface=log[3], log_kind=log[4],
+        stick=stick0, releasing=jnp.array(False),
+        intervals=jnp.full((3,), jnp.nan, dtype), zeno_time=zeno_time0,
+        num_steps=jnp.array(0), num_accepted=jnp.array(0),
+        status=jnp.where(finite0, status0, int(Status.NONFINITE)),
+        done=~finite0 | (status0 != int(Status.SUCCESS)), t_final=t0, x_final=x0,
+        save_index=save_index0, save_xs=save_xs0,
+    )
+
+
+# --------------------------------------------------------------------------------------
+# step: one solver step, then detection, landing and saving as that step calls for
+# --------------------------------------------------------------------------------------
+
+
+def step(ctx: LoopContext, c_in: LoopState) -> LoopState:
+    # A lane out of steps is frozen like a finished one (see `simulate`'s `cond`), but
+    # keeps done = False so that it reports MAX_STEPS.
+    out_of_steps = ~c_in.done & (c_in.num_steps >= ctx.max_steps)
+    c = eqx.tree_at(lambda z: z.done, c_in, c_in.done | out_of_steps)
+    taken = take_step(ctx, c)
+    found = detect(ctx, c, taken)
+    landed, _, s_save = land_if_due(ctx, c, taken)
+    new = _next_state(ctx, c, taken, found, landed, s_save)
+    return eqx.tree_at(lambda z: z.done, new, new.done & ~out_of_steps)
+
+
+def _next_state(ctx: LoopContext, c: LoopState, taken: Step, found: Detection,
+                landed: LoopState, s_save) -> LoopState:
+    """Assemble the next state from the step's outcome: a free step accepted, a contact
+    located (retake the step up to it), a landing (the impact applied), or a rejection."""
+    sa, sb, y1, h_next = taken.sa, taken.sb, taken.y1, taken.h_next
+    accept_free = found.detecting & ~found.event  # accepted, no contact: move on
+    go_land = found.detecting & found.event  # contact located: retake the step up to it
+    reject = ~taken.keep & ~c.landing & ~c.done
+
+    save_index, save_xs = c.save_index, c.save_xs
+    if ctx.ts is not None:
+        # One save pass for the step just taken, in the flight's clock before any jump:
+        # up to sb on a free step, up to the event on a landing, nothing otherwise.
+        s_stop = jnp.where(accept_free, sb, jnp.where(c.landing & ~c.done, s_save, -jnp.inf))
+        save_index, save_xs = _save(ctx, c, taken.interp, sa, s_stop)
+
+    h_min_at, abs_time = ctx.h_min_at, ctx.abs_time
+    reached_end = accept_free & (sb >= taken.s_end - h_min_at(abs_time(sb, c.t_hi, c.t_lo), c.time_scale))
+    underflow = reject & (h_next < h_min_at(abs_time(sa, c.t_hi, c.t_lo), c.time_scale))
+    fail_status = jnp.where(taken.finite, int(Status.STEP_SIZE_UNDERFLOW), int(Status.NONFINITE))
+
+    def pick(a_free, a_land, a_goland, a_other):
+        return jnp.where(
+            accept_free, a_free, jnp.where(c.landing, a_land, jnp.where(go_land, a_goland, a_other))
+        )
+
+    first, pending = found.first, found.pending
+    return LoopState(
+        args=c.args, time_scale=c.time_scale,
+        s=pick(sb, landed.s, sa, sa),
+        t_hi=jnp.where(c.landing, landed.t_hi, c.t_hi),
+        t_lo=jnp.where(c.landing, landed.t_lo, c.t_lo),
+        y=pick(y1, landed.y, c.y, c.y),
+        h=jax.lax.stop_gradient(pick(h_next, landed.h, c.h, h_next)),
+        solver_state=jax.tree.map(
+            lambda a, b: jnp.where(accept_free | c.landing, a, b), taken.solver_state, c.solver_state
+        ),
+        controller_state=jax.tree.map(
+            lambda a, b: jnp.where(c.landing, b, a), taken.controller_state, c.controller_state
+        ),
+        made_jump=pick(False, landed.made_jump, c.made_jump, c.made_jump),
+        restart=jnp.where(accept_free, False, jnp.where(c.landing, landed.restart, c.restart)),
+        flight_scale=jnp.where(
+            accept_free, jnp.maximum(c.flight_scale, jnp.abs(y1)), landed.flight_scale
+        ),
+        landing=go_land,
+        stick=landed.stick,
+        releasing=jnp.where(go_land, found.releasing, landed.releasing),
+        target=jnp.where(go_land, first, c.target),
+        pending=jnp.where(go_land, pending, c.pending),
+        touch=jnp.where(go_land, found.touch & pending, c.touch),
+        boundary=jnp.where(go_land, found.boundary & pending, c.boundary),
+        # After the impact, restart no larger than twice the flight just ended: the
+        # dynamics changed, and an exactly integrated flow would otherwise grow the
+        # step 10x per flight (to 1e9 with t1 = inf) until the event search loses
+        # its precision.
+        h_after=jnp.where(
+            go_land, jnp.minimum(jnp.maximum(sb - sa, h_next), 2 * first + h_min_at(first, c.time_scale)), c.h_after
+        ),
+        num_impacts=landed.num_impacts,
+        log_t=landed.log_t, log_pre=landed.log_pre, log_post=landed.log_post,
+        log_surface=landed.log_surface, log_kind=landed.log_kind,
+        intervals=landed.intervals, zeno_time=landed.zeno_time,
+        num_steps=jnp.where(c.done, c.num_steps, c.num_steps + 1),
+        num_accepted=c.num_accepted + (accept_free | (c.landing & ~c.done)),
+        status=jnp.where(
+            reached_end | c.done | c.landing, landed.status,
+            jnp.where(underflow, fail_status, c.status),
+        ),
+        done=c.done | reached_end | landed.done | underflow,
+        t_final=jnp.where(
+            reached_end, ctx.t1, jnp.where(underflow, abs_time(sa, c.t_hi, c.t_lo), landed.t_final)
+        ),
+        x_final=jnp.where(reached_end, y1, jnp.where(underflow, c.y, landed.x_final)),
+        save_index=save_index, save_xs=save_xs,
+    )
+
+
+def _save(ctx: LoopContext, c: LoopState, interp, sa, s_stop):
+    """Save the dense output at the requested times in (sa, s_stop] (compiled only with
+    `saveat`)."""
+    ts, sigma = ctx.ts, ctx.sigma
+    num = ts.shape[0]
+
+    def local(j):
+        return sigma * ((ts[jnp.minimum(j, num - 1)] - c.t_hi) - c.t_lo)
+
+    if ctx.kinds.outer != "lax":
+        # Reverse mode cannot transpose the data-dependent save loop below: evaluate
+        # the interpolant at every requested time and keep those of this step (costs
+        # len(saveat) evaluations per step, only with a reverse-capable adjoint).
+        j = jnp.arange(num)
+        s_j = local(j)
+        mine = (j >= c.save_index) & (s_j <= s_stop)
+        values = jax.vmap(lambda s_: interp.evaluate(jnp.clip(s_, sa, s_stop)))(s_j)
+        save_xs = jnp.where(mine[:, None], values, c.save_xs)
+        return c.save_index + jnp.sum(mine), save_xs
+
+    def cond(carry):
+        j, _ = carry
+        return (j < num) & (local(j) <= s_stop)
+
+    def body(carry):
+        j, xs = carry
+        s_j = jnp.clip(local(j), sa, s_stop)
+        return j + 1, xs.at[j].set(interp.evaluate(s_j))
+
+    return lax.while_loop(cond, body, (c.save_index, c.save_xs))
+
+
+# --------------------------------------------------------------------------------------
+# running, finish
+# --------------------------------------------------------------------------------------
+
+
+def running(ctx: LoopContext, c: LoopState):
+    return ~c.done & (c.num_steps < ctx.max_steps)
+
+
+def finish(ctx: LoopContext, final: LoopState) -> Solution:
+    out_of_steps = ~final.done
+    t_now = ctx.abs_time(final.s, final.t_hi, final.t_lo)
+    return Solution(
+        t_final=jnp.where(out_of_steps, t_now, final.t_final),
+        x_final=jnp.where(out_of_steps, final.y, final.x_final),
+        num_impacts=final.num_impacts,
+        impact_times=final.log_t,
+        impact_pre=final.log_pre,
+        impact_post=final.log_post,
+        impact_surface=final.log_surface,
+        impact_kind=final.log_kind,
+        status=jnp.where(out_of_steps, int(Status.MAX_STEPS), final.status),
+        zeno_time=final.zeno_time,
+        num_steps=final.num_steps,
+        num_accepted_steps=final.num_accepted,
+        ts=ctx.ts,
+        xs=final.save_xs,
+    )
+
+
+def _tree_all_finite(tree):
+    leaves = [
+        jnp.all(jnp.isfinite(leaf))
+        for leaf in jax.tree.leaves(tree)
+        if eqx.is_array_like(leaf) and jnp.issubdtype(jnp.result_type(leaf), jnp.inexact)
+    ]
+    return jnp.all(jnp.array(leaves)) if leaves else jnp.array(True)
+
+
+def _with_implicit_tolerances(solver, controller):
+    """Give an implicit solver's root finder the controller's tolerances, as diffeqsolve does."""
+    if not isinstance(solver, diffrax.AbstractImplicitSolver):
+        return solver
+    from diffrax._root_finder import use_stepsize_tol
+
+    attrs = [
+        a for a in ("rtol", "atol", "norm") if getattr(solver.root_finder, a) is use_stepsize_tol
+    ]
+    if not attrs:
+        return solver
+    return eqx.tree_at(
+        lambda s: tuple(getattr(s.root_finder, a) for a in attrs),
+        solver,
+        tuple(getattr(controller, a) for a in attrs),
+    )

@@ -1,0 +1,102 @@
+"""`LoopState`: everything one lane carries from one solver step to the next."""
+
+from typing import Any
+
+import equinox as eqx
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float, Int, PyTree
+
+from .._custom_types import Args, BoolScalar, IntScalar, RealScalar, State
+
+
+class LoopState(eqx.Module):
+    """One lane's loop state (shapes for one lane; `vmap` and `sweep` add a leading axis).
+
+    The loop runs in local time s >= 0 since the last restart; absolute time is
+    t = t_hi + t_lo + σ s, with the restart time in double-double (see `dd_add`).
+    """
+
+    args: Args  # this lane's parameters (in the state so that a pool of lanes can refill)
+    time_scale: RealScalar  # |t| below which a step no longer moves time (see h_min_at)
+    s: RealScalar  # local clock at the start of the next step
+    t_hi: RealScalar  # absolute time of the last restart, double-double
+    t_lo: RealScalar
+    y: State
+    h: RealScalar  # next step size
+    solver_state: PyTree[Any]
+    controller_state: PyTree[Any]
+    made_jump: BoolScalar
+    restart: Bool[Array, " m"]  # the flight starts on surface i (guard its first step)
+    flight_scale: State  # max |x_k| over the current flight, per coordinate: its round-off scale
+    landing: BoolScalar  # the next step lands exactly on a located contact
+    target: RealScalar  # local time of that contact
+    pending: Bool[Array, "m signs"]  # which surfaces (and sides) the contact involves
+    touch: Bool[Array, "m signs"]  # tangential contacts (γ)
+    boundary: Bool[Array, "m signs"]  # contacts on ∂Γ (β)
+    h_after: RealScalar  # step size to resume with after the impact
+    num_impacts: IntScalar
+    log_t: Float[Array, " impacts"] | None
+    log_pre: Float[Array, "impacts n"] | None
+    log_post: Float[Array, "impacts n"] | None
+    log_surface: Int[Array, " impacts"] | None
+    log_kind: Int[Array, " impacts"] | None
+    stick: Bool[Array, " m"]  # sliding on surface i, held by its contact force (ZenoStick)
+    releasing: BoolScalar  # the located event is the end of that sliding (release)
+    intervals: Float[Array, " 3"]  # the last three inter-impact times, for Zeno detection
+    zeno_time: RealScalar
+    num_steps: IntScalar
+    num_accepted: IntScalar
+    status: IntScalar
+    done: BoolScalar
+    t_final: RealScalar
+    x_final: State
+    save_index: IntScalar | None
+    save_xs: Float[Array, "saves n"] | None
+
+
+# The state's buffers: written row by row, never read inside the loop (see `write_log`).
+BUFFERS = ("log_t", "log_pre", "log_post", "log_surface", "log_kind", "save_index", "save_xs")
+
+
+def without_buffers(c: LoopState) -> LoopState:
+    return eqx.tree_at(
+        lambda z: tuple(getattr(z, k) for k in BUFFERS), c, (None,) * len(BUFFERS),
+        is_leaf=lambda z: z is None,
+    )
+
+
+def with_buffers(small: LoopState, full: LoopState) -> LoopState:
+    return eqx.tree_at(
+        lambda z: tuple(getattr(z, k) for k in BUFFERS), small,
+        tuple(getattr(full, k) for k in BUFFERS), is_leaf=lambda z: z is None,
+    )
+
+
+def write_log(log, row, apply, t, pre, post, surface, kind):
+    # A row that is not applied is written out of bounds and dropped: the buffers are only
+    # written, never read, in the loop, so XLA updates them in place (a read-modify-write
+    # `where(apply, new, log[row])` made it copy every buffer at every iteration under vmap:
+    # per-lane cost grew with max_impacts).
+    log_t, log_pre, log_post, log_surface, log_kind = log
+    row = jnp.where(apply, row, log_t.shape[0])
+    return (
+        log_t.at[row].set(t, mode="drop"),
+        log_pre.at[row].set(pre, mode="drop"),
+        log_post.at[row].set(post, mode="drop"),
+        log_surface.at[row].set(surface, mode="drop"),
+        log_kind.at[row].set(kind, mode="drop"),
+    )
+
+
+def two_sum(a, b):
+    s = a + b
+    bb = s - a
+    err = (a - (s - bb)) + (b - bb)
+    return s, err
+
+
+def dd_add(hi, lo, x):
+    """(hi, lo) + x in double-double arithmetic."""
+    s, e = two_sum(hi, x)
+    e = e + lo
+    return two_sum(s, e)

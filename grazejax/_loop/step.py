@@ -1,0 +1,86 @@
+"""One solver step and the step-size controller's verdict on it."""
+
+from typing import Any, NamedTuple
+
+import diffrax
+import equinox.internal as eqxi
+import jax
+import jax.lax as lax
+import jax.numpy as jnp
+from jaxtyping import PyTree
+
+from .._custom_types import BoolScalar, RealScalar, State
+from .._stepping import error_or_zero
+from .context import LoopContext
+from .state import LoopState
+
+
+class Step(NamedTuple):
+    """A step [sa, sb] just taken from `c.y`, and what the controller made of it."""
+
+    sa: RealScalar
+    sb: RealScalar
+    s_end: RealScalar  # local time of t1
+    y1: State
+    interp: diffrax.AbstractLocalInterpolation  # the step's dense output, in the local clock
+    keep: BoolScalar  # accepted (and finite)
+    finite: BoolScalar  # y1 is finite
+    h_next: RealScalar
+    solver_state: PyTree[Any]
+    controller_state: PyTree[Any]
+
+
+def take_step(ctx: LoopContext, c: LoopState) -> Step:
+    """One solver step from c.s: to the located contact on a landing, else by c.h (never
+    past t1)."""
+    solver, controller = ctx.solver, ctx.controller
+    targs = (c.args, c.t_hi, c.t_lo, c.stick)
+    s_end = ctx.s_end_of(c.t_hi, c.t_lo)
+    sa = c.s
+    sb = jnp.where(c.landing, c.target, jnp.minimum(sa + c.h, s_end))
+    y1, y_error, dense_info, solver_state1, _ = solver.step(
+        ctx.term, sa, sb, c.y, targs, c.solver_state, c.made_jump
+    )
+    # A NaN error estimate must reject the step, not poison the controller (diffrax #143).
+    y_error = error_or_zero(y_error, y1)
+    y_error = jnp.where(jnp.isnan(y_error), jnp.inf, y_error)
+    y_error = equilibrium_probe(ctx, sa, sb, c.y, y1, y_error, targs)
+    keep, _, tnext, _, controller_state1, _ = controller.adapt_step_size(
+        sa, sb, c.y, y1, targs, y_error, ctx.error_order, c.controller_state
+    )
+    finite1 = jnp.all(jnp.isfinite(y1))
+    keep = keep & finite1
+    h_next = jax.lax.stop_gradient(tnext - jnp.where(keep, sb, sa))
+    interp = solver.interpolation_cls(t0=sa, t1=sb, **dense_info)
+    return Step(sa, sb, s_end, y1, interp, keep, finite1, h_next, solver_state1, controller_state1)
+
+
+def equilibrium_probe(ctx: LoopContext, sa, sb, y0, y1, y_error, targs):
+    """The error estimate of a step that did not move the state: that of a perturbation.
+
+    At an equilibrium (x0 = 0 for x'' = −x) every stage is zero, the error estimate is
+    exactly zero and the controller grows the step tenfold per step, to steps far
+    longer than the flow's time scale. The state is still exact there, but its
+    derivatives are not: jacfwd of x'' = −x from 0 over 2π gave [[−16, −3.2],
+    [3.2, −16]] instead of the identity. On such steps the controller is given the
+    error of the same step from a state perturbed by atol/rtol: relative to atol, that
+    is the perturbation's relative error over rtol, so nearby trajectories (and the
+    Jacobian) are kept to the relative tolerance. (A direct evaluation, not a jvp:
+    it works whatever loop kind the Runge–Kutta stages use.)
+    """
+    if not ctx.has_error:
+        return y_error
+    solver, term = ctx.solver, ctx.term
+    still = jnp.all(y_error == 0) & jnp.all(y1 == y0)
+
+    def probe():
+        u = jnp.full_like(y0, ctx.tol_a / ctx.tol_r / jnp.sqrt(ctx.n))
+
+        def error_of(y):
+            state = solver.init(term, sa, sb, y, targs)
+            return error_or_zero(solver.step(term, sa, sb, y, targs, state, True)[1], y)
+
+        nearby_error = error_of(jax.lax.stop_gradient(y0) + u)
+        return jnp.where(still, jax.lax.stop_gradient(jnp.abs(nearby_error)), y_error)
+
+    return lax.cond(eqxi.unvmap_any(still), probe, lambda: y_error)
