@@ -40,6 +40,7 @@ import numpy as np
 from ._adjoint import REVERSE_HINT, loop_kinds
 from ._loop.policies import AbstractZenoPolicy
 from ._loop.program import Program, build_program
+from ._loop.state import packing
 from ._scene import Scene
 from ._solution import ACCEPTED, SimulationError, Solution, failure_message
 from ._status import Status
@@ -196,6 +197,18 @@ def run_loop(cond, program: "Program", init, adjoint, max_steps: int):
         final = lax.while_loop(cond, program.step, init)
         # Name the fix if someone asks for reverse mode (the bare error names lax.while_loop).
         return _mark_forward_only(final)
+    if kinds.outer == "checkpointed":
+        pack, unpack = packing(init)
+        final = eqxi.while_loop(
+            lambda packed: cond(unpack(packed)),
+            lambda packed: pack(program.step(unpack(packed))),
+            pack(init), max_steps=max_steps + 1, kind=kinds.outer,
+            checkpoints=kinds.checkpoints, buffers=lambda packed: packed[1],
+        )
+        return unpack(final)
+    # DirectAdjoint's bounded loop keeps the log in its carry: with the log as buffers it
+    # took 8–10× the primal at 10 impacts against 4.6× before (separate runs on a loaded
+    # machine; not adopted without a side-by-side measurement).
     return eqxi.while_loop(
         cond, program.step, init, max_steps=max_steps + 1, kind=kinds.outer,
         checkpoints=kinds.checkpoints,

@@ -25,6 +25,8 @@ class Solution(eqx.Module):
     - `num_impacts`: number of rows used in the impact log: impacts applied (simultaneous
       impacts count once each) plus, with `zeno="stick"`, the starts and ends of sliding
       (kinds `STICK`, `RELEASE`; count impacts with `impact_kind <= GAMMA_PRIME`).
+      Simultaneous impacts that overflow `max_impacts` are counted (and applied: `x_final`
+      is after all of them) but not logged: the log keeps the first `max_impacts` rows.
     - `impact_times`, `impact_pre`, `impact_post`, `impact_surface`, `impact_kind`: the log.
       In backward time (`t1 < t0`) "pre" is the state met first (on Γ̃) and "post" the
       state after the inverse jump; kinds are the primed ones.

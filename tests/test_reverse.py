@@ -416,3 +416,33 @@ def test_periodic_orbit_grad_with_direct_adjoint():
     np.testing.assert_allclose(grad, (1 - w * w) / D, rtol=EXACT)
     with pytest.raises(ValueError, match="DirectAdjoint"):
         start(jnp.asarray(1.0), RCA)
+
+
+def test_simultaneous_impacts_overflowing_the_log():
+    """Two walls met at the same instant with room for one log row: the run ends
+    MAX_IMPACTS, and reverse mode (whose log is a write-once buffer) gives jacfwd's
+    gradient of the logged impact and the final state (the overflowing row is not written
+    twice)."""
+    def field(t, x, a):
+        return jnp.stack([x[2], x[3], 0.0 * x[2], -a["g"] + 0.0 * x[3]])
+
+    floor = gj.Surface(phi=lambda t, x, a: x[1], jump=lambda t, x, a: x.at[3].set(-a["e"] * x[3]))
+    wall = gj.Surface(phi=lambda t, x, a: x[0], jump=lambda t, x, a: x.at[2].set(-a["e"] * x[2]))
+    scene = gj.Scene(field, [floor, wall])
+    g, e = 9.81, 0.8
+    t_hit = 0.5
+    # x reaches 0 at t_hit with speed 1; y falls from g t_hit²/2 and meets 0 at t_hit too.
+    x0 = np.array([t_hit, g * t_hit**2 / 2, -1.0, 0.0])
+
+    def loss(p, adjoint):
+        sol = gj.simulate(scene, p[:4], 0.0, 2.0, {"g": g, "e": p[4]}, adjoint=adjoint,
+                          max_impacts=1, **TIGHT)
+        return sol.impact_times[0] + jnp.sum(sol.impact_post[0]), sol
+
+    p = jnp.asarray(np.append(x0, e))
+    _, sol = loss(p, None)
+    assert gj.Status(int(sol.status)) == gj.Status.MAX_IMPACTS
+    assert int(sol.impact_surface[0]) == 0  # the log keeps the first row (scene order)
+    forward = jax.jacfwd(lambda q: loss(q, None)[0])(p)
+    reverse = jax.grad(lambda q: loss(q, RCA)[0])(p)
+    assert_close(reverse, forward, MODES)

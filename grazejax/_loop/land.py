@@ -38,8 +38,7 @@ def land_if_due(ctx: LoopContext, c: LoopState, step: Step):
     count = jnp.array(0)
     for slot in range(rows[0].shape[0]):
         apply, pre, post, surface, kind = (r[slot] for r in rows)
-        row = jnp.minimum(c.num_impacts + count, ctx.max_impacts - 1)
-        log = write_log(log, row, apply, t_event, pre, post, surface, kind)
+        log = write_log(log, c.num_impacts + count, apply, t_event, pre, post, surface, kind)
         count = count + apply
     landed = eqx.tree_at(
         lambda z: (z.log_t, z.log_pre, z.log_post, z.log_surface, z.log_kind),

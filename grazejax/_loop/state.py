@@ -3,7 +3,9 @@
 from typing import Any
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Bool, Float, Int, PyTree
 
 from .._custom_types import Args, BoolScalar, IntScalar, RealScalar, State
@@ -72,13 +74,82 @@ def with_buffers(small: LoopState, full: LoopState) -> LoopState:
     )
 
 
+LOG = ("log_t", "log_pre", "log_post", "log_surface", "log_kind")
+
+
+def _without_log(c: LoopState) -> LoopState:
+    return eqx.tree_at(
+        lambda z: tuple(getattr(z, k) for k in LOG), c, (None,) * len(LOG),
+        is_leaf=lambda z: z is None,
+    )
+
+
+def packing(template: LoopState):
+    """`(pack, unpack)`: the state as one flat array per dtype, plus the impact log.
+
+    For the checkpointed loop of reverse mode only. The log is passed to
+    `eqxi.while_loop(buffers=...)` as Diffrax passes its save buffers (written one row at a
+    time, never read in the loop): it is then stored once instead of in every checkpoint
+    (with the default ~450 checkpoints, 1000 log rows were 31 MiB of checkpoints), and the
+    backward pass reads each row's cotangent once instead of carrying the whole log's
+    cotangent through every step. (`save_xs` is not a buffer: the reverse-mode save
+    selects whole arrays.) The rest is packed: the checkpointed loop's backward pass handles
+    every carry leaf separately at every step (load from a checkpoint, save to one, select,
+    add cotangents); with ~40 small leaves that bookkeeping cost more than the step's own
+    VJP. Concatenating and slicing is exact: values and derivatives are those of the
+    unpacked loop.
+    """
+    leaves, treedef = jax.tree.flatten(_without_log(template))
+    dtypes = list(dict.fromkeys(jnp.result_type(leaf) for leaf in leaves))
+    layout, offsets = [], dict.fromkeys(dtypes, 0)
+    for leaf in leaves:
+        dtype, size = jnp.result_type(leaf), int(np.prod(jnp.shape(leaf)))
+        layout.append((dtypes.index(dtype), offsets[dtype], size, jnp.shape(leaf)))
+        offsets[dtype] += size
+
+    def pack(c: LoopState):
+        flat = jax.tree.leaves(_without_log(c))
+        groups = tuple(
+            jnp.concatenate(
+                [jnp.ravel(x).astype(d) for x, (g, *_) in zip(flat, layout, strict=True) if g == i]
+            )
+            for i, d in enumerate(dtypes)
+        )
+        return groups, tuple(getattr(c, k) for k in LOG)
+
+    def unpack(packed) -> LoopState:
+        groups, log = packed
+        flat = [groups[g][o : o + size].reshape(shape) for g, o, size, shape in layout]
+        c = jax.tree.unflatten(treedef, flat)
+        return eqx.tree_at(
+            lambda z: tuple(getattr(z, k) for k in LOG), c, log, is_leaf=lambda z: z is None
+        )
+
+    return pack, unpack
+
+
 def write_log(log, row, apply, t, pre, post, surface, kind):
+    """Write one impact-log row where `apply`. Rows past the end (simultaneous impacts
+    overflowing `max_impacts`) are not written: the log holds the first impacts, the same
+    in every loop kind."""
+    log_t, log_pre, log_post, log_surface, log_kind = log
+    size = log_t.shape[0]
+    if not isinstance(log_t, jax.Array):
+        # The write-once buffers of a checkpointed loop (`packing`): a predicated write.
+        # (Not `mode="drop"`: their transpose reads the cotangent back with the same mode,
+        # and an out-of-bounds read fills NaN.) Buffers must be written at most once per
+        # index, so a row past the end must not be clamped onto the last one.
+        pred = apply & (row < size)
+        row = jnp.minimum(row, size - 1)
+        return tuple(
+            buffer.at[row].set(value, pred=pred)
+            for buffer, value in zip(log, (t, pre, post, surface, kind), strict=True)
+        )
     # A row that is not applied is written out of bounds and dropped: the buffers are only
     # written, never read, in the loop, so XLA updates them in place (a read-modify-write
     # `where(apply, new, log[row])` made it copy every buffer at every iteration under vmap:
     # per-lane cost grew with max_impacts).
-    log_t, log_pre, log_post, log_surface, log_kind = log
-    row = jnp.where(apply, row, log_t.shape[0])
+    row = jnp.where(apply, row, size)
     return (
         log_t.at[row].set(t, mode="drop"),
         log_pre.at[row].set(pre, mode="drop"),
