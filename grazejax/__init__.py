@@ -43,6 +43,7 @@ from ._periodic import Floquet as Floquet
 from ._periodic import GrazingBranches as GrazingBranches
 from ._periodic import Orbit as Orbit
 from ._periodic import OrbitStatus as OrbitStatus
+from ._periodic import SolverSettings as SolverSettings
 from ._periodic import find_periodic_orbit as find_periodic_orbit
 from ._periodic import floquet_multipliers as floquet_multipliers
 from ._periodic import grazing_branches as grazing_branches
