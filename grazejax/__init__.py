@@ -14,7 +14,9 @@ from ._conditions import check_conditions as check_conditions
 from ._continuation import Branch as Branch
 from ._continuation import ContinuationStatus as ContinuationStatus
 from ._continuation import GrazingPoint as GrazingPoint
+from ._continuation import SpecialPoint as SpecialPoint
 from ._continuation import continue_orbit as continue_orbit
+from ._continuation import period_doubled_orbit as period_doubled_orbit
 from ._continuation import plot_bifurcation_diagram as plot_bifurcation_diagram
 from ._linearize import A2Diagnostic as A2Diagnostic
 from ._linearize import ClosedForm as ClosedForm

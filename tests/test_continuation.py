@@ -14,7 +14,13 @@ from grazejax._continuation import (
 )
 from grazejax._periodic import OrbitStatus, find_periodic_orbit
 
-from .test_periodic import EPS, EX1DOF, OSC, TOL  # shared scenes: shared compiled programs
+from .test_periodic import (  # shared scenes: shared compiled programs
+    EPS,
+    EX1DOF,
+    OSC,
+    TOL,
+    period_one_closed_form,
+)
 
 
 def ex1dof_args(mu):
@@ -59,6 +65,27 @@ def test_ex1dof_grazing_bifurcation_at_zero(tmp_path):
     path = tmp_path / "ex1dof-bifurcation.png"
     plot_bifurcation_diagram(branch, path, coordinate=0, title="ex1dof")
     assert path.exists() and path.stat().st_size > 10_000
+
+
+def test_ex1dof_grazing_from_the_impacting_side():
+    """The impacting cycle (μ = 0.2) continued down: its impact speed → 0 like √μ, so
+    arclength in μ stalls; the impact-speed monitor locates grazing at μ = 0 (closed form:
+    Ψ_μ touches Γ at μ = 0) and continuation goes on along Ψ_μ (period 2π, max x1 = 2 + μ)."""
+    orbit = find_periodic_orbit(EX1DOF, [2.0, 0.0], 6.2, ex1dof_args(0.2), fix=1,
+                                start_at_impact=False, **TOL)
+    branch = continue_orbit(EX1DOF, orbit, ex1dof_args, 0.2, -0.2, progress=False, **TOL)
+    assert ContinuationStatus(branch.status) == ContinuationStatus.REACHED_STOP, branch.message
+    assert len(branch.grazing) == 1
+    graze = branch.grazing[0]
+    assert (graze.impacts_before, graze.impacts_after, graze.kind) == (1, 0, "persistence")
+    assert abs(graze.mu) < 1e-6
+    assert branch.mu[-1] == -0.2
+    before, after = branch.mu > graze.mu, branch.mu < graze.mu
+    assert np.all(branch.num_impacts[before] == 1) and np.all(branch.num_impacts[after] == 0)
+    np.testing.assert_allclose(branch.period[after], 2 * math.pi, atol=1e-8)
+    # x_max is the largest of 400 samples (and the impact states): 2e-6 short of the peak.
+    np.testing.assert_allclose(branch.x_max[after][:, 0], 2 + branch.mu[after], atol=1e-5)
+    assert branch.settings.rtol == TOL["rtol"] and branch.settings.atol == TOL["atol"]
 
 
 def _grazing_mu_by_scipy(eps=1e-4):
@@ -133,3 +160,64 @@ def test_forced_oscillator_fold_and_grazing():
     # Past grazing: the linear response, multipliers e^{(−ζ ± i√(1−ζ²))T}.
     free = ~impacting
     np.testing.assert_allclose(np.abs(branch.multipliers[free]), math.exp(-0.05 * T), rtol=1e-8)
+
+
+def _osc_08(sigma):
+    return ex.impact_oscillator_args(zeta=0.05, A=1.0, omega=0.8, sigma=sigma, r=0.8)
+
+
+def test_forced_oscillator_grazing_then_the_one_impact_family():
+    """x'' + 0.1x' + x = cos(0.8t), stop at σ (r = 0.8): the non-impacting response (σ = 3)
+    grazes at σ* = 1/√((1 − ω²)² + (2ζω)²) and the one-impact family begins there. Its
+    orbits are checked against the closed-form period-1 orbit (impact phase and speed)."""
+    omega = 0.8
+    T = 2 * math.pi / omega
+    orbit = find_periodic_orbit(OSC, np.asarray(ex.linear_response(0.0, _osc_08(3.0))), T,
+                                _osc_08(3.0), fixed_period=True, **TOL)
+    branch = continue_orbit(OSC, orbit, _osc_08, 3.0, 2.6, progress=False, **TOL)
+    sigma_star = 1 / math.sqrt((1 - omega**2) ** 2 + (2 * 0.05 * omega) ** 2)
+    graze = branch.grazing[0]
+    np.testing.assert_allclose(graze.mu, sigma_star, atol=1e-6)
+    assert (graze.impacts_before, graze.impacts_after) == (0, 1), branch.message
+    impacting = np.flatnonzero(branch.num_impacts == 1)
+    assert len(impacting) >= 3 and np.all(branch.mu[impacting] < sigma_star)
+    # The farthest one-impact point against the closed form.
+    i = impacting[np.argmax(sigma_star - branch.mu[impacting])]
+    args = _osc_08(float(branch.mu[i]))
+    again = find_periodic_orbit(OSC, branch.x0[i], T, args, t0=branch.t0[i], fixed_period=True,
+                                start_at_impact=False, **TOL)
+    assert int(again.status) == OrbitStatus.SUCCESS and int(again.num_impacts) == 1
+    theta, v, rho = period_one_closed_form(args, float(again.impact_times[0]))
+    np.testing.assert_allclose(float(again.impact_times[0]) % T, theta % T, atol=1e-8)
+    np.testing.assert_allclose(float(again.impact_pre[0][1]), v, atol=1e-8)
+    np.testing.assert_allclose(np.sort(np.abs(branch.multipliers[i])), np.sort(np.abs(rho)), rtol=1e-6)
+
+
+def test_branch_export_and_labelled_diagram(tmp_path):
+    """CSV/JSON export and the diagram's labels, on a hand-made three-point branch."""
+    import csv
+    import json
+
+    rho = np.array([[-0.9, 0.1], [-1.0, 0.1], [-1.1, 0.1]], complex)
+    pd_point = gj.SpecialPoint(kind="period-doubling", mu=0.5, x0=np.array([1.0, 0.0]), t0=0.0,
+                               period=2.0, multipliers=rho[1], num_impacts=1,
+                               eigenvector=np.array([1.0, 0.0]))
+    branch = gj.Branch(
+        mu=np.array([0.4, 0.5, 0.6]), period=np.full(3, 2.0), x0=np.ones((3, 2)), t0=np.zeros(3),
+        multipliers=rho, num_impacts=np.ones(3, int), stable=np.array([True, False, False]),
+        x_min=-np.ones((3, 2)), x_max=np.ones((3, 2)) * [[1.0], [1.1], [1.2]],
+        poincare_determinant=np.ones(3), grazing=(), status=int(ContinuationStatus.REACHED_STOP),
+        special_points=(pd_point,),
+    )
+    rows = list(csv.DictReader(branch.to_csv(tmp_path / "b.csv").splitlines()))
+    assert (tmp_path / "b.csv").exists() and len(rows) == 3
+    assert float(rows[1]["mu"]) == 0.5 and rows[1]["special"] == "PD" and rows[0]["special"] == ""
+    assert float(rows[2]["abs_rho_0"]) == pytest.approx(1.1)
+    data = json.loads(branch.to_json(tmp_path / "b.json"))
+    assert data["special_points"][0]["label"] == "PD" and data["status"] == "REACHED_STOP"
+    assert data["points"]["multipliers_re"][1][0] == -1.0
+    fig = plot_bifurcation_diagram(branch, tmp_path / "b.png")
+    texts = [t.get_text() for t in fig.axes[0].texts]
+    assert any(t.startswith("PD") for t in texts)
+    labels = fig.axes[0].get_legend_handles_labels()[1]
+    assert "1 impact(s)/period, stable" in labels and "1 impact(s)/period, unstable" in labels
