@@ -193,6 +193,90 @@ def test_forced_oscillator_grazing_then_the_one_impact_family():
     np.testing.assert_allclose(np.sort(np.abs(branch.multipliers[i])), np.sort(np.abs(rho)), rtol=1e-6)
 
 
+def _scipy_period_map(sigma, x, t0, T, omega=0.8, zeta=0.05, r=0.8):
+    """The forced oscillator's time-T map, independently: SciPy's DOP853 with a terminal
+    event at x = σ (approached from below) and v → −r v there."""
+    from scipy.integrate import solve_ivp
+
+    def f(t, y):
+        return [y[1], -2 * zeta * y[1] - y[0] + math.cos(omega * t)]
+
+    def hit(t, y):
+        return y[0] - sigma
+
+    hit.terminal, hit.direction = True, 1
+    t, y = t0, np.asarray(x, float)
+    for _ in range(100):
+        sol = solve_ivp(f, (t, t0 + T), y, method="DOP853", rtol=1e-12, atol=1e-13, events=hit)
+        if sol.status != 1:
+            return sol.y[:, -1]
+        t, y = sol.t_events[0][0], np.array([sigma, -r * sol.y_events[0][0][1]])
+    raise AssertionError("too many impacts in one period")
+
+
+def _scipy_period_doubling(t0, x_guess, T, bracket):
+    """σ where a multiplier of the period-1 orbit is −1: Brent's method on det(DP + I), P
+    the SciPy period map, its fixed point by scipy.optimize.root, DP by central differences."""
+    from scipy.optimize import brentq, root
+
+    state = {"x": np.asarray(x_guess, float)}
+
+    def g(sigma):
+        fixed = root(lambda x: _scipy_period_map(sigma, x, t0, T) - x, state["x"], tol=1e-13)
+        # hybr may report "not making good progress" once at round-off: judge the residual.
+        assert np.max(np.abs(fixed.fun)) < 1e-10, fixed.message
+        state["x"] = fixed.x
+        h = 1e-6
+        DP = np.column_stack([
+            (_scipy_period_map(sigma, fixed.x + h * e, t0, T)
+             - _scipy_period_map(sigma, fixed.x - h * e, t0, T)) / (2 * h)
+            for e in np.eye(2)
+        ])
+        return np.linalg.det(DP + np.eye(2))
+
+    return brentq(g, *bracket, xtol=1e-10)
+
+
+@pytest.mark.slow
+def test_forced_oscillator_period_doubling_and_the_period_two_orbit():
+    """From σ = 1.5 upward the one-impact orbit of x'' + 0.1x' + x = cos(0.8t) (r = 0.8)
+    loses stability through a multiplier −1 near σ = 1.93; the period-2 orbit found from
+    it at σ = 2.0 is the attractor. Both against a separate SciPy shooting code."""
+    T = 2 * math.pi / 0.8
+    sol = gj.simulate(OSC, np.zeros(2), 0.0, 100 * T, _osc_08(1.5), max_impacts=1000, **TOL)
+    orbit = find_periodic_orbit(OSC, np.asarray(sol.x_final), T, _osc_08(1.5), fixed_period=True,
+                                **TOL)
+    assert int(orbit.status) == OrbitStatus.SUCCESS and int(orbit.num_impacts) == 1
+    branch = continue_orbit(OSC, orbit, _osc_08, 1.5, 2.0, progress=False, **TOL)
+    pd = [p for p in branch.special_points if p.kind == "period-doubling"]
+    assert len(pd) == 1 and pd[0].label == "PD"
+    point = pd[0]
+    np.testing.assert_allclose(np.min(np.abs(np.asarray(point.multipliers) + 1)), 0, atol=1e-7)
+    sigma_pd = _scipy_period_doubling(point.t0, point.x0, T, (point.mu - 0.02, point.mu + 0.02))
+    np.testing.assert_allclose(point.mu, sigma_pd, atol=1e-5)
+    assert branch.stable[branch.mu < point.mu - 1e-3].all()
+    assert not branch.stable[branch.mu > point.mu + 1e-3].any()
+
+    # Branch switching just past the period-doubling point, then the period-2 family.
+    mu_two = point.mu + 0.005
+    two = gj.period_doubled_orbit(OSC, point, _osc_08(mu_two), **TOL)
+    assert int(two.status) == OrbitStatus.SUCCESS, two.message
+    np.testing.assert_allclose(float(two.period), 2 * T)
+    assert int(two.num_impacts) == 2 and bool(two.stable)
+    family = continue_orbit(OSC, two, _osc_08, mu_two, 2.0, progress=False, **TOL)
+    assert ContinuationStatus(family.status) == ContinuationStatus.REACHED_STOP, family.message
+    assert family.mu[-1] == 2.0 and family.num_impacts[-1] == 2 and family.stable[-1]
+    # SciPy: the attractor reached from rest, sampled at the orbit's phase, is that orbit.
+    t0, x_two = float(family.t0[-1]), family.x0[-1]
+    x = np.zeros(2)
+    for _ in range(400):
+        x = _scipy_period_map(2.0, x, t0, T)
+    other = _scipy_period_map(2.0, x, t0, T)
+    assert np.max(np.abs(x - other)) > 1e-2  # period 2, not 1
+    distance = min(np.max(np.abs(x - x_two)), np.max(np.abs(other - x_two)))
+    assert distance < 1e-6
+
+
 def test_branch_export_and_labelled_diagram(tmp_path):
     """CSV/JSON export and the diagram's labels, on a hand-made three-point branch."""
     import csv
