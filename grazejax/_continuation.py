@@ -630,7 +630,11 @@ def continue_orbit(
                 located = dataclasses.replace(located, mu=mu_star)
                 switched = None
                 if switch_branches:
-                    arrival = 1.0 if float(tangent[-1]) >= 0 else -1.0
+                    # Arrival: from the family's last point towards μ* (near a fold the
+                    # tangent's μ component can point either way).
+                    gap_mu = mu_star - float(np.asarray(last["Y"])[-1])
+                    arrival = float(np.sign(gap_mu)) if gap_mu != 0 else (
+                        1.0 if float(tangent[-1]) >= 0 else -1.0)
                     switched = _switch(fam, end, args_of, t0, T_fixed, fixed, k_now, arrival,
                                        ds, phase_of, j, ts_unit)
                 if switched is None:
