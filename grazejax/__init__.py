@@ -14,7 +14,9 @@ from ._conditions import check_conditions as check_conditions
 from ._continuation import Branch as Branch
 from ._continuation import ContinuationStatus as ContinuationStatus
 from ._continuation import GrazingPoint as GrazingPoint
+from ._continuation import SpecialPoint as SpecialPoint
 from ._continuation import continue_orbit as continue_orbit
+from ._continuation import period_doubled_orbit as period_doubled_orbit
 from ._continuation import plot_bifurcation_diagram as plot_bifurcation_diagram
 from ._linearize import A2Diagnostic as A2Diagnostic
 from ._linearize import ClosedForm as ClosedForm
@@ -46,6 +48,7 @@ from ._periodic import Floquet as Floquet
 from ._periodic import GrazingBranches as GrazingBranches
 from ._periodic import Orbit as Orbit
 from ._periodic import OrbitStatus as OrbitStatus
+from ._periodic import SolverSettings as SolverSettings
 from ._periodic import find_periodic_orbit as find_periodic_orbit
 from ._periodic import floquet_multipliers as floquet_multipliers
 from ._periodic import grazing_branches as grazing_branches

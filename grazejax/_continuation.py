@@ -38,14 +38,19 @@ import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 
+from ._geometry import gap_rates
 from ._periodic import (
     Orbit,
     OrbitStatus,
+    SolverSettings,
     _a5,
+    _atol_for,
     _linearize,
     _PeriodMap,
     _sampled,
+    _solver_name,
     _state_at,
+    _state_scale,
     find_periodic_orbit,
     orbit_contacts,
 )
@@ -110,6 +115,37 @@ class GrazingPoint:
     kind: str
 
 
+@dataclasses.dataclass(frozen=True, eq=False)
+class SpecialPoint:
+    r"""A bifurcation of a smooth family found by [`grazejax.continue_orbit`][].
+
+    - `kind`: `"period-doubling"` (a real multiplier through −1: test function
+      Π(1 + ρ_i), located by a secant/regula-falsi search in μ with a corrector at fixed μ
+      per step), `"fold"` (μ turns back along the arclength: the vertex of the parabola
+      through the three points around it) or `"neimark-sacker"` (a complex pair through the
+      unit circle: test function Π_{i<j}(ρ_i ρ_j − 1) changes sign with a complex pair of
+      modulus near 1; linear interpolation between the two points around it).
+    - `mu`: where; `x0`, `t0`, `period`: the orbit there; `multipliers` (modulus
+      descending); `num_impacts`.
+    - `eigenvector`: for period doubling, the real eigenvector of the multiplier −1
+      (the direction of the period-2 orbits: [`grazejax.period_doubled_orbit`][]).
+    - `label`: a short label for diagrams (`"PD"`, `"LP"`, `"NS"`).
+    """
+
+    kind: str
+    mu: float
+    x0: np.ndarray
+    t0: float
+    period: float
+    multipliers: np.ndarray
+    num_impacts: int
+    eigenvector: np.ndarray | None = None
+
+    @property
+    def label(self) -> str:
+        return {"period-doubling": "PD", "fold": "LP", "neimark-sacker": "NS"}[self.kind]
+
+
 class Branch(eqx.Module):
     r"""A continued family of periodic orbits ([`grazejax.continue_orbit`][]). NumPy arrays.
 
@@ -125,6 +161,10 @@ class Branch(eqx.Module):
     - `poincare_determinant`: the (A6) determinant per point.
     - `grazing`: the [`grazejax.GrazingPoint`][]s met, in order.
     - `status`: a [`grazejax.ContinuationStatus`][] code; `message` reads it.
+    - `settings`: the [`grazejax.SolverSettings`][] of the continuation (every point is a
+      converged orbit: a point whose corrector fails is never recorded).
+    - `special_points`: the [`grazejax.SpecialPoint`][]s (period doubling, folds,
+      Neimark–Sacker) met on smooth stretches, in order.
     """
 
     mu: Any
@@ -139,6 +179,8 @@ class Branch(eqx.Module):
     poincare_determinant: Any
     grazing: tuple = eqx.field(static=True)
     status: int = eqx.field(static=True)
+    settings: SolverSettings | None = eqx.field(static=True, default=None)
+    special_points: tuple = eqx.field(static=True, default=())
 
     @property
     def message(self) -> str:
@@ -146,6 +188,83 @@ class Branch(eqx.Module):
 
     def __len__(self) -> int:
         return len(self.mu)
+
+    def to_dict(self) -> dict:
+        """Plain Python data (lists, floats, strings): points, special and grazing points,
+        status and settings. Complex multipliers are split into `_re` / `_im` lists."""
+        mult = np.asarray(self.multipliers)
+        return {
+            "points": {
+                "mu": np.asarray(self.mu).tolist(), "period": np.asarray(self.period).tolist(),
+                "t0": np.asarray(self.t0).tolist(), "x0": np.asarray(self.x0).tolist(),
+                "num_impacts": np.asarray(self.num_impacts).tolist(),
+                "stable": np.asarray(self.stable).tolist(),
+                "multipliers_re": mult.real.tolist(), "multipliers_im": mult.imag.tolist(),
+                "x_min": np.asarray(self.x_min).tolist(), "x_max": np.asarray(self.x_max).tolist(),
+                "poincare_determinant": np.asarray(self.poincare_determinant).tolist(),
+            },
+            "special_points": [
+                {"kind": p.kind, "label": p.label, "mu": p.mu, "period": p.period,
+                 "x0": np.asarray(p.x0).tolist(), "num_impacts": p.num_impacts,
+                 "multipliers_re": np.asarray(p.multipliers).real.tolist(),
+                 "multipliers_im": np.asarray(p.multipliers).imag.tolist()}
+                for p in self.special_points
+            ],
+            "grazing": [
+                {"mu": g.mu, "kind": g.kind, "impacts_before": g.impacts_before,
+                 "impacts_after": g.impacts_after, "surface": g.surface, "time": g.time,
+                 "point": np.asarray(g.point).tolist(), "depth": g.depth}
+                for g in self.grazing
+            ],
+            "status": ContinuationStatus(self.status).name,
+            "settings": None if self.settings is None else dataclasses.asdict(self.settings),
+        }
+
+    def to_json(self, path=None) -> str:
+        """The branch as JSON (`to_dict`); written to `path` if given."""
+        import json
+
+        text = json.dumps(self.to_dict(), indent=1)
+        if path is not None:
+            with open(path, "w") as f:
+                f.write(text)
+        return text
+
+    def to_csv(self, path=None) -> str:
+        """One row per point: mu, period, num_impacts, stable, x0_i, x_min_i, x_max_i,
+        |rho|_i, rho_i (re, im), and `special` (the labels of special points located
+        between this point and the previous one; `G` for grazing). Written to `path` if
+        given."""
+        import csv
+        import io
+
+        mu = np.asarray(self.mu)
+        n = np.asarray(self.x0).shape[1] if len(mu) else 0
+        labels = [[] for _ in range(len(mu))]
+        marks = [(p.mu, p.label) for p in self.special_points] + [(g.mu, "G") for g in self.grazing]
+        for m, label in marks:
+            if len(mu):
+                labels[int(np.argmin(np.abs(mu - m)))].append(label)
+        out = io.StringIO()
+        w = csv.writer(out)
+        w.writerow(["mu", "period", "num_impacts", "stable"]
+                   + [f"x0_{i}" for i in range(n)] + [f"x_min_{i}" for i in range(n)]
+                   + [f"x_max_{i}" for i in range(n)] + [f"abs_rho_{i}" for i in range(n)]
+                   + [f"rho_{i}_re" for i in range(n)] + [f"rho_{i}_im" for i in range(n)]
+                   + ["special"])
+        mult = np.asarray(self.multipliers)
+        for i in range(len(mu)):
+            w.writerow([repr(float(mu[i])), repr(float(self.period[i])), int(self.num_impacts[i]),
+                        bool(self.stable[i])]
+                       + [repr(float(v)) for v in np.concatenate([
+                           self.x0[i], self.x_min[i], self.x_max[i], np.abs(mult[i]),
+                           mult[i].real, mult[i].imag])]
+                       + [" ".join(labels[i])])
+        text = out.getvalue()
+        if path is not None:
+            with open(path, "w", newline="") as f:
+                f.write(text)
+        return text
 
 
 # --------------------------------------------------------------------------------------
@@ -242,11 +361,20 @@ def _correct(fam: _Family, Y_pred, tangent, t0, e_j, c, T_fixed, ts_unit):
     states = np.concatenate([np.asarray(samples.xs), np.asarray(sol.impact_pre[:k]),
                              np.asarray(sol.impact_post[:k])], axis=0)
     f_x = np.asarray(fam.pmap.scene.vector_field(t0, jnp.asarray(x), args))
+    # The grazing monitor of an impacting orbit: the smallest normal impact speed |∇Φ·f⁻|
+    # (→ 0 at grazing; the family is smooth in it, Nordmark's normal form).
+    speed = math.inf
+    for m in range(k):
+        phi = fam.pmap.scene.surfaces[int(sol.impact_surface[m])].phi
+        _, rate, _ = gap_rates(phi, fam.pmap.scene.vector_field, sol.impact_times[m],
+                               sol.impact_pre[m], args)
+        speed = min(speed, abs(float(rate)))
     return dict(
         Y=Y, tangent=jnp.asarray(new_tangent), good=bool(np.all(np.isfinite(new_tangent))),
         num_impacts=k, monodromy=M, multipliers=multipliers,
         stable=bool(_a5(jnp.asarray(multipliers), fam.fixed_period)), a6=float(np.linalg.det(a6)),
         x_min=states.min(axis=0), x_max=states.max(axis=0), f_x=f_x, steps=steps, period=float(T),
+        impact_speed=speed,
     )
 
 
@@ -294,7 +422,7 @@ def continue_orbit(
     switch_branches: bool = True,
     progress: bool = True,
     rtol: float = 1e-10,
-    atol: float = 1e-12,
+    atol: float | None = None,
     solver: diffrax.AbstractSolver | None = None,
     newton_tol: float = 1e-8,
     max_newton_steps: int = 8,
@@ -322,8 +450,10 @@ def continue_orbit(
     - `switch_branches`: look for the other family where the continued one ends at a
       grazing point.
     - `progress`: a tqdm progress bar (points computed).
-    - `rtol`, `atol`, `solver`: for [`grazejax.simulate`][]; `newton_tol`,
-      `max_newton_steps`: the corrector.
+    - `rtol`, `atol`, `solver`: for [`grazejax.simulate`][] (`atol=None`: `1e-2 · rtol`
+      times the starting orbit's size, as in [`grazejax.find_periodic_orbit`][]);
+      `newton_tol`, `max_newton_steps`: the corrector (its absolute tolerance is
+      `newton_tol` times the orbit's size).
     - `num_samples`: samples per orbit for `x_min`, `x_max`.
 
     **Returns:** a [`grazejax.Branch`][] (its points in order of computation, across any
@@ -352,12 +482,22 @@ def continue_orbit(
     if mu_start == mu_stop:
         raise ValueError("mu_start == mu_stop: nothing to continue")
     fixed = bool(orbit.fixed_period)
+    scale = (orbit.settings.state_scale if orbit.settings is not None
+             else _state_scale(np.asarray(orbit.x0)))
+    atol = _atol_for(orbit, rtol, atol)
     kw = dict(solver=solver, rtol=float(rtol), atol=float(atol), max_impacts=64,
               max_solver_steps=50_000)
+    settings = SolverSettings(
+        solver=_solver_name(solver), rtol=float(rtol), atol=float(atol),
+        newton_rtol=float(newton_tol), newton_atol=float(newton_tol) * scale,
+        max_steps=int(max_newton_steps), max_solver_steps=50_000, max_impacts=64,
+        state_scale=scale,
+    )
     pmap = _PeriodMap(scene=scene, end_impacts=0, **kw)
     fam = _Family(
         pmap=pmap, args_of=args_of, period_of=period_of, fixed_period=fixed,
-        root_finder=optx.Newton(rtol=newton_tol, atol=newton_tol), max_steps=int(max_newton_steps),
+        root_finder=optx.Newton(rtol=newton_tol, atol=newton_tol * scale),
+        max_steps=int(max_newton_steps),
     )
     ts_unit = jnp.linspace(0.0, 1.0, int(num_samples), endpoint=False)
     direction = 1.0 if mu_stop > mu_start else -1.0
@@ -371,7 +511,7 @@ def continue_orbit(
     )
     n = x_s.shape[0]
     if int(start.status) != OrbitStatus.SUCCESS:
-        return _empty_branch(n, ContinuationStatus.START_FAILED)
+        return _empty_branch(n, ContinuationStatus.START_FAILED, settings)
     t0 = jnp.asarray(t_s)
 
     def phase_of(x, f_x, j_old=None):
@@ -394,13 +534,15 @@ def continue_orbit(
     e_mu = jnp.zeros(Y.shape[0]).at[-1].set(1.0)
     first = _correct(fam, Y, e_mu, t0, e_j, c, T_fixed, ts_unit)
     if not bool(first["good"]):
-        return _empty_branch(n, ContinuationStatus.START_FAILED)
+        return _empty_branch(n, ContinuationStatus.START_FAILED, settings)
     first = dict(first, tangent=direction * first["tangent"])
     points = [_record(first, fixed)]
     current = first
     grazing: list[GrazingPoint] = []
+    special: list[SpecialPoint] = []
     status = ContinuationStatus.MAX_POINTS
     h = float(ds)
+    approach_tried = -1
 
     bar = None
     if progress:
@@ -428,6 +570,9 @@ def continue_orbit(
             guess = (current["Y"] + frac * h * tangent).at[-1].set(mu_stop)
             last = _natural(fam, guess, t0, e_j, c, T_fixed, ts_unit)
             if bool(last["good"]) and int(last["num_impacts"]) == int(current["num_impacts"]):
+                natural = _natural_at(fam, current, phase_of, j, fixed, t0, T_fixed, ts_unit)
+                special.extend(_special_points(natural, points[-2] if len(points) > 1 else None,
+                                               current, last, fixed, locate_tol, float(t0)))
                 points.append(_record(last, fixed))
                 status = ContinuationStatus.REACHED_STOP
                 if bar is not None:
@@ -455,6 +600,10 @@ def continue_orbit(
                 # The other count was found far away: the family ends at `graze`.
                 accepted, boundary = False, graze
         if accepted:
+            if int(new["num_impacts"]) == int(current["num_impacts"]):
+                natural = _natural_at(fam, current, phase_of, j, fixed, t0, T_fixed, ts_unit)
+                special.extend(_special_points(natural, points[-2] if len(points) > 1 else None,
+                                               current, new, fixed, locate_tol, float(t0)))
             points.append(_record(new, fixed))
             current = new
             if int(new["steps"]) <= 3:
@@ -464,6 +613,43 @@ def continue_orbit(
                 bar.set_postfix(mu=f"{float(new['Y'][-1]):.5g}", impacts=int(new["num_impacts"]),
                                 ds=f"{h:.2g}")
             continue
+        if boundary is None and k_now > 0 and approach_tried != len(points):
+            # An impacting family that the corrector cannot follow: if its impact speed is
+            # going to 0, approach grazing along the family parametrised by that speed.
+            approach_tried = len(points)
+            natural = _natural_at(fam, current, phase_of, j, fixed, t0, T_fixed, ts_unit)
+            reach = 4 * h * abs(float(tangent[-1]))
+            found = _approach_grazing(natural, points, k_now, locate_tol, reach=reach)
+            if found is not None:
+                mu_star, Y_star, new_points = found
+                points.extend(_record(pt, fixed) for pt in new_points)
+                last = new_points[-1] if new_points else current
+                end = dict(last, Y=jnp.asarray(Y_star))
+                located = _grazing_point(scene, end, args_of, fam, t0, T_fixed, fixed, k_now,
+                                         None, "end", kw).point
+                located = dataclasses.replace(located, mu=mu_star)
+                switched = None
+                if switch_branches:
+                    # Arrival: from the family's last point towards μ* (near a fold the
+                    # tangent's μ component can point either way).
+                    gap_mu = mu_star - float(np.asarray(last["Y"])[-1])
+                    arrival = float(np.sign(gap_mu)) if gap_mu != 0 else (
+                        1.0 if float(tangent[-1]) >= 0 else -1.0)
+                    switched = _switch(fam, end, args_of, t0, T_fixed, fixed, k_now, arrival,
+                                       ds, phase_of, j, ts_unit)
+                if switched is None:
+                    grazing.append(located)
+                    status = ContinuationStatus.BRANCH_ENDS
+                    break
+                other, kind = switched
+                grazing.append(dataclasses.replace(
+                    located, impacts_after=int(other["num_impacts"]), kind=kind))
+                points.append(_record(other, fixed))
+                current = other
+                h = float(ds)
+                if bar is not None:
+                    bar.update(len(new_points) + 1)
+                continue
         if boundary is None:
             h *= 0.5
             if h >= ds_min:
@@ -487,6 +673,9 @@ def continue_orbit(
             arrival = 1.0 if float(tangent[-1]) >= 0 else -1.0
             switched = _switch(fam, boundary, args_of, t0, T_fixed, fixed, k_now, arrival, ds,
                                phase_of, j, ts_unit)
+        if switched is None and switch_branches and k_now == 0:
+            switched = _impacting_family(fam, located, boundary, args_of, t0, T_fixed, fixed,
+                                         arrival, ds, phase_of, j, ts_unit)
         if boundary is not current:
             points.append(_record(boundary, fixed))
         if switched is None:
@@ -503,7 +692,7 @@ def continue_orbit(
             bar.update(2)
     if bar is not None:
         bar.close()
-    return _branch(points, grazing, status, n, float(t_s))
+    return _branch(points, grazing, status, n, float(t_s), settings, tuple(special))
 
 
 def _x_of(Y, fixed):
@@ -515,15 +704,15 @@ def _record(point, fixed=None) -> dict:
     return {k: np.asarray(v) for k, v in point.items()}
 
 
-def _empty_branch(n, status) -> Branch:
+def _empty_branch(n, status, settings=None) -> Branch:
     z = np.zeros((0,))
     return Branch(mu=z, period=z, x0=np.zeros((0, n)), t0=z, multipliers=np.zeros((0, n), complex),
                   num_impacts=np.zeros((0,), int), stable=np.zeros((0,), bool),
                   x_min=np.zeros((0, n)), x_max=np.zeros((0, n)), poincare_determinant=z,
-                  grazing=(), status=int(status))
+                  grazing=(), status=int(status), settings=settings)
 
 
-def _branch(points, grazing, status, n, t0) -> Branch:
+def _branch(points, grazing, status, n, t0, settings=None, special=()) -> Branch:
     def stack(key):
         return np.stack([p[key] for p in points])
 
@@ -534,7 +723,8 @@ def _branch(points, grazing, status, n, t0) -> Branch:
         t0=np.full(len(points), t0), multipliers=stack("multipliers"),
         num_impacts=stack("num_impacts").astype(int), stable=stack("stable").astype(bool),
         x_min=stack("x_min"), x_max=stack("x_max"), poincare_determinant=stack("a6"),
-        grazing=tuple(grazing), status=int(status),
+        grazing=tuple(grazing), status=int(status), settings=settings,
+        special_points=tuple(special),
     )
 
 
@@ -636,6 +826,232 @@ def _extrapolate_end(scene, located, recent, args_of, fam, t0, T_fixed, fixed, k
     return dataclasses.replace(located, point=dataclasses.replace(located.point, mu=mu_star))
 
 
+def _test_functions(multipliers, fixed):
+    """(period doubling, Neimark–Sacker) test functions on the non-trivial multipliers."""
+    rho = np.asarray(multipliers, complex)
+    if not fixed and len(rho):
+        rho = np.delete(rho, int(np.argmin(np.abs(rho - 1))))
+    pd = float(np.real(np.prod(1 + rho)))
+    pairs = [rho[a] * rho[b] - 1 for a in range(len(rho)) for b in range(a + 1, len(rho))]
+    ns = float(np.real(np.prod(pairs))) if pairs else 1.0
+    return pd, ns
+
+
+def _special(kind, point, fixed, t0, mu=None, eigenvector=None):
+    Y = np.asarray(point["Y"])
+    return SpecialPoint(kind=kind, mu=float(Y[-1]) if mu is None else float(mu),
+                        x0=_x_of(Y, fixed), t0=t0, period=float(point["period"]),
+                        multipliers=np.asarray(point["multipliers"]),
+                        num_impacts=int(point["num_impacts"]), eigenvector=eigenvector)
+
+
+def _special_points(natural, before, a, b, fixed, tol, t0, max_solves=16):
+    """Special points between consecutive points `a`, `b` of one smooth family."""
+    found = []
+    mu_a, mu_b = float(np.asarray(a["Y"])[-1]), float(np.asarray(b["Y"])[-1])
+    pd_a, ns_a = _test_functions(a["multipliers"], fixed)
+    pd_b, ns_b = _test_functions(b["multipliers"], fixed)
+    if pd_a * pd_b < 0 and mu_a != mu_b:
+        # Regula falsi (Illinois) in μ on Π(1 + ρ), a corrector at fixed μ per step.
+        lo, hi, f_lo, f_hi = (a, b, pd_a, pd_b)
+        best, side = None, 0
+        for _ in range(max_solves):
+            m_lo, m_hi = float(np.asarray(lo["Y"])[-1]), float(np.asarray(hi["Y"])[-1])
+            w = f_lo / (f_lo - f_hi)
+            guess = (1 - w) * np.asarray(lo["Y"]) + w * np.asarray(hi["Y"])
+            trial = natural(jnp.asarray(guess))
+            if not bool(trial["good"]) or int(trial["num_impacts"]) != int(a["num_impacts"]):
+                break
+            best = trial
+            f = _test_functions(trial["multipliers"], fixed)[0]
+            if abs(m_hi - m_lo) <= tol * max(1.0, abs(m_lo)) or f == 0:
+                break
+            if f * f_lo > 0:
+                lo, f_lo = trial, f
+                f_hi = f_hi / 2 if side == -1 else f_hi
+                side = -1
+            else:
+                hi, f_hi = trial, f
+                f_lo = f_lo / 2 if side == 1 else f_lo
+                side = 1
+            if abs(float(np.asarray(hi["Y"])[-1]) - float(np.asarray(lo["Y"])[-1])) <= tol * max(1.0, abs(m_lo)):
+                break
+        if best is not None:
+            w, v = np.linalg.eig(np.asarray(best["monodromy"]))
+            m = int(np.argmin(np.abs(w + 1)))
+            vec = np.real(v[:, m])
+            found.append(_special("period-doubling", best, fixed, t0, eigenvector=vec / np.linalg.norm(vec)))
+    if ns_a * ns_b < 0:
+        rho = np.asarray(b["multipliers"])
+        complex_pair = np.any((np.abs(rho.imag) > 1e-8) & (np.abs(np.abs(rho) - 1) < 0.5))
+        if complex_pair:
+            w = ns_a / (ns_a - ns_b)
+            found.append(_special("neimark-sacker", b, fixed, t0, mu=(1 - w) * mu_a + w * mu_b))
+    if before is not None:
+        mu_0 = float(np.asarray(before["Y"])[-1])
+        if (mu_a - mu_0) * (mu_b - mu_a) < 0:
+            # μ turned back at `a`: the vertex of the parabola through the three points
+            # (parametrised by their index: the arclength steps are comparable).
+            c2, c1, _ = np.polyfit([-1.0, 0.0, 1.0], [mu_0, mu_a, mu_b], 2)
+            s_v = -c1 / (2 * c2) if c2 != 0 else 0.0
+            mu_fold = float(np.polyval([c2, c1, mu_a], np.clip(s_v, -1, 1)))
+            found.append(_special("fold", a, fixed, t0, mu=mu_fold))
+    return found
+
+
+@eqx.filter_jit
+def _impact_closure(free: _PeriodMap, surface, fixed: bool, z, time, args):
+    """Residual and Jacobian of an orbit closed by one impact, as a flight (no impacts
+    inside): unknowns z = (s, x⁻) with s the impact time θ (forced: the period is `time`)
+    or the period T (autonomous: θ = `time`); equations x(θ + T; θ, J(x⁻)) = x⁻ and
+    Φ(θ, x⁻) = 0. Smooth in z even at zero impact speed, unlike the period map."""
+
+    def residual(z):
+        theta, T = (z[0], time) if fixed else (time, z[0])
+        x_pre = z[1:]
+        x_post = surface.jump(theta, x_pre, args)
+        sol = free.run(x_post, theta, theta + T, args, free.max_impacts)
+        return jnp.concatenate([sol.x_final - x_pre, surface.phi(theta, x_pre, args)[None]])
+
+    return residual(z), jax.jacfwd(residual)(z)
+
+
+def _impacting_family(fam, located, end, args_of, t0, T_fixed, fixed, arrival, ds, phase_of, j,
+                      ts_unit):
+    """The one-impact family born at the grazing point of a non-impacting family.
+
+    Near grazing the period map's Jacobian grows like 1/v (the impact speed) and Newton's
+    basin shrinks with it, so the corrector cannot reach the impacting orbits from the
+    grazing one. Instead, each is solved first as a flight closed by its impact
+    (`_impact_closure`, smooth at v = 0: the hspo formulation of COCO), started at the
+    grazing contact, on each side of μ*; then the corrector polishes it. The side where
+    such orbits exist, with an impact speed that shrinks towards μ*, is the new family.
+    Returns `(point, kind)` or None."""
+    graze = located.point
+    if graze.surface < 0 or not np.isfinite(graze.time):
+        return None
+    scene = fam.pmap.scene
+    surface = scene.surfaces[graze.surface]
+    free = dataclasses.replace(fam.pmap, scene=Scene(scene.vector_field, ()), max_impacts=1)
+    Y_end = np.asarray(end["Y"])
+    T0 = float(T_fixed) if fixed else float(Y_end[0])
+    mu_star = float(graze.mu)
+    scale = 1.0 + float(np.max(np.abs(Y_end[:-1])))
+    for side, kind in ((arrival, "persistence"), (-arrival, "fold")):
+        found = []
+        for h in (1e-2 * ds, 1e-1 * ds):
+            mu = mu_star + side * h
+            args = args_of(jnp.asarray(mu))
+            T = T0 if not fixed or fam.period_of is None else float(fam.period_of(mu))
+            z = np.concatenate([[graze.time if fixed else T], np.asarray(graze.point, float)])
+            ok = False
+            for _ in range(30):
+                r, J = _impact_closure(free, surface, fixed, jnp.asarray(z),
+                                       jnp.asarray(T if fixed else graze.time), args)
+                r, J = np.asarray(r), np.asarray(J)
+                if not (np.all(np.isfinite(r)) and np.all(np.isfinite(J))):
+                    break
+                try:
+                    dz = np.linalg.solve(J, r)
+                except np.linalg.LinAlgError:
+                    break
+                z = z - dz
+                if np.max(np.abs(dz)) <= 1e-13 * scale:
+                    ok = True
+                    break
+            if not ok:
+                continue
+            theta = float(z[0]) if fixed else float(graze.time)
+            period = T if fixed else float(z[0])
+            x_pre = jnp.asarray(z[1:])
+            # An impact, not a departure: the gap must be closing at θ.
+            _, rate, _ = gap_rates(surface.phi, scene.vector_field, jnp.asarray(theta), x_pre, args)
+            if not float(rate) < 0:
+                continue
+            x_post = surface.jump(jnp.asarray(theta), x_pre, args)
+            # The state at the continuation's phase t0 (mod the period), by the free flight.
+            t_target = theta + (float(t0) - theta) % period
+            if t_target - theta > 0:
+                x_t = np.asarray(free.run(x_post, jnp.asarray(theta), jnp.asarray(t_target), args,
+                                          1).x_final)
+            else:
+                x_t = np.asarray(x_post)
+            guess = np.concatenate([[] if fixed else [period], x_t, [mu]])
+            natural = _natural_at(fam, end, phase_of, j, fixed, t0, T_fixed, ts_unit)
+            point = natural(jnp.asarray(guess))
+            if bool(point["good"]) and int(point["num_impacts"]) == 1:
+                found.append((abs(float(rate)), point))
+        if len(found) == 2 and found[0][0] < found[1][0]:
+            point = found[-1][1]
+            if float(point["tangent"][-1]) * side < 0:
+                point = dict(point, tangent=-point["tangent"])
+            return point, kind
+    return None
+
+
+def _natural_at(fam, point, phase_of, j, fixed, t0, T_fixed, ts_unit):
+    """`Y ↦ ` the corrector at fixed μ = Y[-1], with the phase condition of `point`."""
+    e_j, c, _ = phase_of(np.asarray(_x_of(point["Y"], fixed)), point["f_x"], j)
+
+    def natural(Y_guess):
+        e, cc = e_j, c
+        if not fixed:  # the section through the guess itself
+            cc = float(np.asarray(Y_guess)[1:-1] @ np.asarray(e_j))
+        return _natural(fam, jnp.asarray(Y_guess), t0, e, cc, T_fixed, ts_unit)
+
+    return natural
+
+
+def _approach_grazing(natural, history, k_from, locate_tol, reach=math.inf, max_solves=12):
+    """Locate where an impacting family grazes, from its impacting side.
+
+    Near grazing the family is not smooth in μ (its impact speed v behaves like a power of
+    the distance to grazing, Nordmark's normal form), but it is smooth in v. So the last
+    points of the family are fitted as polynomials Y(v) (degree ≤ 2), and natural-parameter
+    solves at μ = μ(v/4) (from the fit) bring v down geometrically; the grazing μ* = μ(0)
+    is extrapolated, to `locate_tol` once two successive estimates agree.
+
+    `natural(Y_guess)` corrects at the fixed μ = Y_guess[-1]. Returns `(mu_star, Y_star,
+    points)` (Y_star the fit at v = 0, `points` the new family points in order), or None.
+    """
+    pts = [p for p in history if int(p["num_impacts"]) == k_from and math.isfinite(p["impact_speed"])]
+    pts = pts[-4:]
+    if len(pts) < 2:
+        return None
+    new_points, estimates = [], []
+    for _ in range(max_solves):
+        v = np.array([p["impact_speed"] for p in pts[-3:]])
+        Ys = np.stack([np.asarray(p["Y"]) for p in pts[-3:]])
+        if v[-1] >= v[-2]:
+            return None  # the impact speed is not going to 0 along these points
+        degree = min(len(v) - 1, 2)
+        coef = np.polyfit(v, Ys, degree)
+
+        def at(value, coef=coef):
+            return np.stack([np.polyval(coef[:, i], value) for i in range(coef.shape[1])])
+
+        mu_star = float(at(0.0)[-1])
+        if not estimates and abs(mu_star - float(Ys[-1, -1])) > reach:
+            return None  # grazing is not within reach of the failed step
+        estimates.append(mu_star)
+        if len(estimates) >= 2 and abs(estimates[-1] - estimates[-2]) <= locate_tol * max(1.0, abs(mu_star)):
+            return mu_star, at(0.0), new_points
+        trial = None
+        for shrink in (0.25, 0.5, 0.75):
+            candidate = natural(jnp.asarray(at(shrink * v[-1])))
+            if bool(candidate["good"]) and int(candidate["num_impacts"]) == k_from and \
+                    candidate["impact_speed"] < v[-1]:
+                trial = candidate
+                break
+        if trial is None:
+            break
+        pts.append(trial)
+        new_points.append(trial)
+    if len(estimates) >= 2 and abs(estimates[-1] - estimates[-2]) <= 1e3 * locate_tol * max(1.0, abs(estimates[-1])):
+        return estimates[-1], at(0.0), new_points
+    return None
+
+
 def _natural(fam: _Family, Y_guess, t0, e_j, c, T_fixed, ts_unit):
     """Newton at fixed μ (the last component of Y_guess): the corrector with the bordered
     row (Y − Y_guess)·e_μ = 0. Same compiled program as `_correct`."""
@@ -675,6 +1091,49 @@ def _switch(fam, end, args_of, t0, T_fixed, fixed, k_from, direction, ds, phase_
     return None
 
 
+def period_doubled_orbit(scene: Scene, point: SpecialPoint, args, *, epsilon: float = 1e-2,
+                         **kwargs) -> Orbit:
+    r"""Branch switching at a period-doubling point: the period-2 orbit nearby.
+
+    The period-2 orbits bifurcating at a multiplier −1 lie, to first order, along its
+    eigenvector e, at a distance ∝ √|μ − μ_PD| on the side where they exist. Newton
+    ([`grazejax.find_periodic_orbit`][]) is started from x0 ± ε·|x0|·e with twice the
+    period, ε = `epsilon`, 10·`epsilon`, `epsilon`/10; the first start that converges to an
+    orbit that is not the period-1 orbit (its half-period map moves x0) is returned. Ask
+    for it close to the period-doubling point (|μ − μ_PD| ≲ 1e-2), then continue it.
+
+    **Arguments:** `scene`; `point` (a `"period-doubling"` [`grazejax.SpecialPoint`][]);
+    `args` at the parameter where the period-2 orbit is wanted (near `point.mu`); `epsilon`;
+    `kwargs` for [`grazejax.find_periodic_orbit`][] (`rtol`, `atol`, ...;
+    `fixed_period=False` for an autonomous orbit, default True).
+
+    **Returns:** an [`grazejax.Orbit`][] (check `orbit.status`); continue it with
+    [`grazejax.continue_orbit`][] (the period-2 family).
+    """
+    if point.kind != "period-doubling" or point.eigenvector is None:
+        raise ValueError("period_doubled_orbit needs a period-doubling SpecialPoint")
+    fixed = bool(kwargs.pop("fixed_period", True))  # forced systems; False: autonomous
+    x0 = np.asarray(point.x0, float)
+    size = float(np.max(np.abs(x0))) or 1.0
+    last = None
+    starts = [(sign, eps) for eps in (epsilon, 10 * epsilon, 0.1 * epsilon) for sign in (1.0, -1.0)]
+    for sign, eps in starts:
+        guess = x0 + sign * eps * size * np.asarray(point.eigenvector)
+        orbit = find_periodic_orbit(scene, guess, 2 * point.period, args, t0=point.t0,
+                                    fixed_period=fixed, start_at_impact=False, **kwargs)
+        last = orbit
+        if int(orbit.status) != OrbitStatus.SUCCESS:
+            continue
+        pmap = _PeriodMap(scene=scene, end_impacts=0, solver=kwargs.get("solver"),
+                          rtol=float(kwargs.get("rtol", 1e-10)),
+                          atol=float(orbit.settings.atol), max_impacts=64, max_solver_steps=50_000)
+        half = _state_at(pmap, np.asarray(orbit.x0), float(orbit.t0),
+                         float(orbit.t0) + float(orbit.period) / 2, args)
+        if np.max(np.abs(half - np.asarray(orbit.x0))) > 1e-6 * size:
+            return orbit
+    return last
+
+
 # --------------------------------------------------------------------------------------
 # Bifurcation diagram
 # --------------------------------------------------------------------------------------
@@ -703,9 +1162,10 @@ def plot_bifurcation_diagram(
     - `ax`: a Matplotlib `Axes` to draw on (default: a new figure).
     - `title`, `mu_label`, `dpi`: labels and resolution.
 
-    Stable orbits ((A5) holds) are solid lines, unstable ones dashed; the colour is the
-    number of impacts per period; grazing points are black diamonds (labelled with their
-    kind: persistence, fold, end).
+    Stable orbits ((A5) holds) are solid lines, unstable ones dashed; the colour and the
+    legend give the number of impacts per period; grazing points are black diamonds
+    labelled `G` with their kind (persistence, fold, end); special points are labelled
+    `PD` (period doubling, square), `LP` (fold, triangle), `NS` (Neimark–Sacker, circle).
 
     **Returns:** the Matplotlib `Figure`.
     """
@@ -756,8 +1216,14 @@ def plot_bifurcation_diagram(
         for g in b.grazing:
             idx = int(np.argmin(np.abs(mu - g.mu)))
             ax.plot([g.mu], [y[idx]], "D", color="k", ms=6, zorder=5)
-            ax.annotate(f"grazing ({g.kind})\nμ = {g.mu:.6g}", (g.mu, y[idx]),
+            ax.annotate(f"G ({g.kind})\nμ = {g.mu:.6g}", (g.mu, y[idx]),
                         textcoords="offset points", xytext=(6, -22), fontsize=8)
+        for p in b.special_points:
+            idx = int(np.argmin(np.abs(mu - p.mu)))
+            ax.plot([p.mu], [y[idx]], {"PD": "s", "LP": "^", "NS": "o"}[p.label], color="k",
+                    mfc="w", ms=7, zorder=6)
+            ax.annotate(f"{p.label}\nμ = {p.mu:.6g}", (p.mu, y[idx]),
+                        textcoords="offset points", xytext=(6, 8), fontsize=8)
     ax.set_xlabel(mu_label)
     ax.set_ylabel({"max": f"max x{coordinate + 1}", "min": f"min x{coordinate + 1}",
                    "amplitude": f"amplitude of x{coordinate + 1}"}[measure])

@@ -93,6 +93,10 @@ class OrbitStatus(enum.IntEnum):
     """The orbit found does not have the requested number of impacts per period."""
     NO_END_IMPACT = 9
     """x0 was read as a post-impact state, but the period-closing impact was not reached."""
+    LOOSE_ATOL = 10
+    """Newton converged, but the simulation's `atol` exceeds 10 × `rtol` × the orbit's size:
+    the period map (and so the orbit and its multipliers) is only as accurate as
+    atol / size, not `rtol`. Pass `atol=None` (scaled to the orbit) or a smaller `atol`."""
 
     @property
     def message(self) -> str:
@@ -117,7 +121,62 @@ _MESSAGES = {
     OrbitStatus.IMPACT_COUNT: "the orbit found does not have num_impacts impacts per period",
     OrbitStatus.NO_END_IMPACT: "x0 lies on a surface and was read as a post-impact state, "
     "but the impact that closes the period was not reached",
+    OrbitStatus.LOOSE_ATOL: "atol is larger than 10·rtol times the orbit's size: the "
+    "simulation controls its error in absolute terms only, so the orbit and its multipliers "
+    "are not accurate to rtol; pass atol=None (scaled to the orbit) or a smaller atol",
 }
+
+
+@dataclasses.dataclass(frozen=True)
+class SolverSettings:
+    """The settings an [`grazejax.Orbit`][] or [`grazejax.Branch`][] was computed with.
+
+    - `solver`: the Diffrax solver's class name (`"default"` for `simulate`'s own choice).
+    - `rtol`, `atol`: the simulation's tolerances, `atol` as actually used (after scaling
+      by `state_scale` when it was left to default).
+    - `newton_rtol`, `newton_atol`: the root finder's tolerances (NaN for a user's
+      `root_finder` without them).
+    - `max_steps`: Newton iterations allowed; `max_solver_steps`, `max_impacts`: for
+      `simulate`.
+    - `state_scale`: the orbit's size used to scale absolute tolerances (max |x|).
+    """
+
+    solver: str
+    rtol: float
+    atol: float
+    newton_rtol: float
+    newton_atol: float
+    max_steps: int
+    max_solver_steps: int
+    max_impacts: int
+    state_scale: float
+
+
+# Default absolute tolerances, relative to rtol × the orbit's size: atol = 1e-2 · rtol · size
+# (1e-12 for rtol = 1e-10 and an orbit of size 1, the former fixed default).
+_ATOL_PER_RTOL = 1e-2
+
+
+def _state_scale(*arrays) -> float:
+    """max |x| over concrete arrays (1 if they are all zero or not finite)."""
+    values = [np.max(np.abs(np.asarray(a, float))) for a in arrays if np.size(a)]
+    values = [v for v in values if np.isfinite(v)]
+    s = max(values) if values else 0.0
+    return float(s) if s > 0 else 1.0
+
+
+def _atol_for(orbit, rtol, atol) -> float:
+    """`atol`, or (None) the default scaled to the orbit's size."""
+    if atol is not None:
+        return float(atol)
+    settings = getattr(orbit, "settings", None)
+    scale = settings.state_scale if settings is not None else _state_scale(orbit.x0)
+    return _ATOL_PER_RTOL * float(rtol) * scale
+
+
+def _solver_name(solver) -> str:
+    return "default" if solver is None else type(solver).__name__
+
 
 
 # --------------------------------------------------------------------------------------
@@ -150,6 +209,11 @@ class Orbit(eqx.Module):
     - `start_at_impact`: whether x0 is a post-impact state and the period ends just after
       an impact (static).
     - `fixed_period`: whether T was held fixed (forced systems; static).
+    - `settings`: the [`grazejax.SolverSettings`][] it was computed with (static).
+
+    Only a converged orbit (`status == SUCCESS`) is a periodic orbit: for any other status
+    `x0`, `period`, `monodromy` and `multipliers` describe the last Newton iterate, and
+    `stable` is False (no stability verdict).
 
     Multipliers and the monodromy carry no derivatives; `x0` and `period` are
     differentiable with respect to `args` (implicit function theorem).
@@ -174,6 +238,7 @@ class Orbit(eqx.Module):
     num_steps: Int[Array, ""]
     start_at_impact: bool = eqx.field(static=True, default=False)
     fixed_period: bool = eqx.field(static=True, default=False)
+    settings: SolverSettings | None = eqx.field(static=True, default=None)
 
     @property
     def succeeded(self) -> Bool[Array, ""]:
@@ -186,27 +251,39 @@ class Orbit(eqx.Module):
 
     @property
     def stable(self) -> Bool[Array, ""]:
-        """(A5): all non-trivial multipliers strictly inside the unit circle.
+        """(A5) for a converged orbit: all non-trivial multipliers strictly inside the unit
+        circle. False whenever the solve did not succeed (no verdict: see `message`).
 
         For an autonomous orbit the multiplier closest to 1 is the trivial one and is
         left out; for a forced orbit (`fixed_period=True`) all multipliers count.
         """
-        return _a5(self.multipliers, self.fixed_period)
+        return _a5(self.multipliers, self.fixed_period) & self.succeeded
 
     def summary(self) -> str:
         """A short human-readable account (outside jit, unbatched)."""
         status = OrbitStatus(int(self.status))
         k = int(self.num_impacts)
         rho = ", ".join(_fmt_complex(z) for z in np.asarray(self.multipliers))
+        if status == OrbitStatus.SUCCESS:
+            what = ""
+            verdict = f"(A5) {'holds' if bool(self.stable) else 'fails'}"
+        else:
+            what = "NOT CONVERGED (the last iterate, not a verified periodic orbit): "
+            verdict = "no (A5) verdict"
         lines = [
             f"status: {status.name} ({status.message})",
-            f"period = {float(self.period):.15g}, x0 = {np.asarray(self.x0)} at t0 = {float(self.t0):g}"
-            + (" (post-impact)" if self.start_at_impact else ""),
+            f"{what}period = {float(self.period):.15g}, x0 = {np.asarray(self.x0)} at "
+            f"t0 = {float(self.t0):g}" + (" (post-impact)" if self.start_at_impact else ""),
             f"{k} impact(s) per period; residual {float(self.residual):.2e}; "
             f"{int(self.num_steps)} Newton step(s)",
-            f"multipliers: {rho}; (A5) {'holds' if bool(self.stable) else 'fails'}",
-            f"(A6) determinant = {float(self.poincare_determinant):.6g}",
+            f"multipliers: {rho}; {verdict}",
+            f"(A6) determinant = {float(self.poincare_determinant):.6g}"
+            + ("" if status == OrbitStatus.SUCCESS else " (at the last iterate)"),
         ]
+        if self.settings is not None:
+            st = self.settings
+            lines.append(f"settings: solver {st.solver}, rtol {st.rtol:.1e}, atol {st.atol:.1e}, "
+                         f"Newton rtol {st.newton_rtol:.1e}, atol {st.newton_atol:.1e}")
         return "\n".join(lines)
 
 
@@ -438,6 +515,11 @@ def _assess(pmap, fixed_period, n, j, fix, f_guess, x_guess, x0, period, t0, arg
         jnp.max(jnp.abs(f_end)) <= 1e-8 * jnp.maximum(f_scale, jnp.finfo(x0.dtype).tiny)
     )
     wrong_count = (requested_impacts >= 0) & (sol.num_impacts != requested_impacts)
+    # The orbit's size: x0 and its impact states (x0 alone may sit near 0 in a coordinate).
+    impact_states = jnp.concatenate([sol.impact_pre, sol.impact_post])
+    size = jnp.maximum(jnp.max(jnp.abs(x_fixed)),
+                       jnp.max(jnp.where(jnp.isfinite(impact_states), jnp.abs(impact_states), 0.0)))
+    loose_atol = pmap.atol > 10 * pmap.rtol * size
     if pmap.end_impacts > 0:
         sim_failed = ~ok & (sol.status != Status.SUCCESS)
         no_end_impact = ~ok & (sol.status == Status.SUCCESS)
@@ -447,10 +529,10 @@ def _assess(pmap, fixed_period, n, j, fix, f_guess, x_guess, x0, period, t0, arg
     status = jnp.select(
         [at_rest, fix_tangent, ~finite_y, no_end_impact, sim_failed,
          jnp.array(not fixed_period) & (lax.stop_gradient(period) <= 0), equilibrium,
-         tangent_at_end, ~converged, singular, wrong_count],
+         tangent_at_end, ~converged, singular, wrong_count, loose_atol],
         [S.EQUILIBRIUM, S.FIX_TANGENT, S.DIVERGED, S.NO_END_IMPACT, S.SIMULATION_FAILED,
          S.BAD_PERIOD, S.EQUILIBRIUM, S.FIX_TANGENT, S.NO_CONVERGENCE, S.SINGULAR,
-         S.IMPACT_COUNT],
+         S.IMPACT_COUNT, S.LOOSE_ATOL],
         S.SUCCESS,
     )
     return dict(
@@ -517,7 +599,7 @@ def find_periodic_orbit(
     num_impacts: int | None = None,
     start_at_impact: bool | None = None,
     rtol: float = 1e-10,
-    atol: float = 1e-12,
+    atol: float | None = None,
     solver: diffrax.AbstractSolver | None = None,
     root_finder: optx.AbstractRootFinder | None = None,
     max_steps: int = 40,
@@ -554,9 +636,15 @@ def find_periodic_orbit(
     - `rtol`, `atol`, `solver`, `max_solver_steps`: passed to [`grazejax.simulate`][].
       The orbit cannot be more accurate than the simulation; in weakly contracting
       directions (multiplier ρ near 1) the error is that of one period divided by |1 − ρ|.
-    - `root_finder`: an `optimistix` root finder (default `optx.Newton(newton_tol, newton_tol)`).
+      `atol=None` (default) scales it to the orbit: `1e-2 · rtol · s` with s = max |x0| of
+      the guess, and once more from the result if that is 10× larger or smaller (a state
+      of size 1e-9 then gets atol ≈ 1e-21, not 1e-12, which would leave it 0.1% accurate).
+      An explicit `atol` above `10 · rtol · s` (s the result's size) ends in status
+      `LOOSE_ATOL`: the orbit is not accurate to `rtol`.
+    - `root_finder`: an `optimistix` root finder (default `optx.Newton(newton_tol,
+      newton_tol · s)`: the residual and the step are judged relative to the orbit's size).
     - `max_steps`: Newton iterations.
-    - `newton_tol`: tolerance on the residual and the Newton step.
+    - `newton_tol`: relative tolerance on the residual and the Newton step.
     - `max_impacts`: size of the impact log (impacts per period must not exceed it).
     - `adjoint`: [`grazejax.simulate`][]'s, for the runs that Newton's method solves.
       The default (`diffrax.ForwardMode()`) lets `jax.jacfwd` differentiate the orbit with
@@ -564,9 +652,10 @@ def find_periodic_orbit(
       `jax.grad` do it. Newton linearises in forward mode, so the reverse-only
       `diffrax.RecursiveCheckpointAdjoint()` is a `ValueError`.
 
-    **Returns:** an [`grazejax.Orbit`][]. Failure is a status (`orbit.message`), never an
-    exception inside `jit`; a diverged solve returns its starting point (the guess, after
-    the phase refinement) with the diagnostics there, never NaN.
+    **Returns:** an [`grazejax.Orbit`][] (with the [`grazejax.SolverSettings`][] used).
+    Failure is a status (`orbit.message`), never an exception inside `jit`; a diverged
+    solve returns its starting point (the guess, after the phase refinement) with the
+    diagnostics there, never NaN, and `orbit.stable` is then False (no verdict).
 
     **Example:** the continuous cycle Ψ_μ of ex1dof at μ = −0.2 (period 2π):
 
@@ -601,8 +690,12 @@ def find_periodic_orbit(
             "which adjoint=diffrax.RecursiveCheckpointAdjoint() does not support; pass "
             "adjoint=diffrax.DirectAdjoint() to differentiate the orbit with jax.grad"
         )
+    # Absolute tolerances scale with the orbit (a guess that is traced counts as size 1).
+    scale = _state_scale(x_guess) if is_concrete(x_guess) else 1.0
+    scaled_atol = atol is None
+    atol_used = _ATOL_PER_RTOL * float(rtol) * scale if scaled_atol else float(atol)
     pmap = _PeriodMap(
-        scene=scene, end_impacts=0, solver=solver, rtol=float(rtol), atol=float(atol),
+        scene=scene, end_impacts=0, solver=solver, rtol=float(rtol), atol=atol_used,
         max_impacts=int(max_impacts), max_solver_steps=int(max_solver_steps),
     )
     if start_at_impact is None or (start_at_impact and num_impacts is None):
@@ -623,8 +716,9 @@ def find_periodic_orbit(
                 "pass num_impacts"
             )
     pmap = dataclasses.replace(pmap, end_impacts=int(num_impacts) if start_at_impact else 0)
+    user_root_finder = root_finder is not None
     if root_finder is None:
-        root_finder = optx.Newton(rtol=newton_tol, atol=newton_tol)
+        root_finder = optx.Newton(rtol=newton_tol, atol=newton_tol * scale)
     requested = jnp.asarray(-1 if num_impacts is None else int(num_impacts))
     fixed_period = bool(fixed_period)
     t0 = jnp.asarray(t0, float)
@@ -657,8 +751,31 @@ def find_periodic_orbit(
     lin = _linearize(pmap, x_const, t0, T_const, args_const)
     out = _assess(pmap, fixed_period, n, j, fix_arg, f_guess, x_guess, x_const, T_const, t0,
                   args_const, converged, finite_y, lin, requested)
-    return Orbit(x0=x0, t0=t0, period=T, num_steps=num_steps, start_at_impact=bool(start_at_impact),
-                 fixed_period=fixed_period, **out)
+    settings = SolverSettings(
+        solver=_solver_name(solver), rtol=float(rtol), atol=atol_used,
+        newton_rtol=float(getattr(root_finder, "rtol", math.nan)),
+        newton_atol=float(getattr(root_finder, "atol", math.nan)), max_steps=int(max_steps),
+        max_solver_steps=int(max_solver_steps), max_impacts=int(max_impacts), state_scale=scale,
+    )
+    orbit = Orbit(x0=x0, t0=t0, period=T, num_steps=num_steps,
+                  start_at_impact=bool(start_at_impact), fixed_period=fixed_period,
+                  settings=settings, **out)
+    if scaled_atol and not user_root_finder and is_concrete(orbit.x0, orbit.status):
+        # The guess's size may be far from the orbit's (a poor guess, or x0 near 0 in a
+        # small orbit): solve once more, from the result, with tolerances of its size.
+        k = int(orbit.num_impacts)
+        size = _state_scale(orbit.x0, np.asarray(orbit.impact_pre)[:k],
+                            np.asarray(orbit.impact_post)[:k])
+        usable = int(orbit.status) in (OrbitStatus.SUCCESS, OrbitStatus.LOOSE_ATOL)
+        if usable and not (0.1 * scale <= size <= 10 * scale):
+            return find_periodic_orbit(
+                scene, orbit.x0, orbit.period, args, t0=t0, fix=int(orbit.fix) if int(orbit.fix) >= 0 else None,
+                fixed_period=fixed_period, num_impacts=int(orbit.num_impacts),
+                start_at_impact=bool(start_at_impact), rtol=rtol, atol=_ATOL_PER_RTOL * float(rtol) * size,
+                solver=solver, max_steps=max_steps, newton_tol=newton_tol,
+                max_impacts=max_impacts, max_solver_steps=max_solver_steps, adjoint=adjoint,
+            )
+    return orbit
 
 
 # --------------------------------------------------------------------------------------
@@ -831,7 +948,7 @@ def product_eigenvalues(factors) -> np.ndarray:
 
 
 def floquet_multipliers(scene: Scene, orbit: Orbit, args=None, *, solver=None,
-                        rtol: float = 1e-10, atol: float = 1e-12,
+                        rtol: float = 1e-10, atol: float | None = None,
                         max_solver_steps: int = 50_000) -> Floquet:
     r"""Floquet multipliers of a periodic orbit, computed stably, with the determinant identity.
 
@@ -847,8 +964,9 @@ def floquet_multipliers(scene: Scene, orbit: Orbit, args=None, *, solver=None,
     closed-form saltation matrices and the trace integrated along the orbit.
 
     Run outside `jit` (it loops over impacts in Python). Use the same `rtol`, `atol`,
-    `solver` as the orbit solve.
+    `solver` as the orbit solve (`atol=None`: scaled to the orbit's size as there).
     """
+    atol = _atol_for(orbit, rtol, atol)
     k = int(orbit.num_impacts)
     t0 = float(orbit.t0)
     end = t0 + float(orbit.period)
@@ -1001,14 +1119,16 @@ def _refine_minimum(pmap, scene, i, x0, t0, t_guess, args, lo, hi):
 
 def orbit_contacts(scene: Scene, orbit: Orbit, args=None, *, num_samples: int = 400,
                    max_depth: float = 0.05, solver=None, rtol: float = 1e-10,
-                   atol: float = 1e-12) -> Contacts:
+                   atol: float | None = None) -> Contacts:
     r"""The impacts of an orbit and its near-grazing passes, with a grazing indicator.
 
     Passes are local minima of Φ_i along the flights, found on `num_samples` samples of
     one period and refined by a Newton step on dΦ/dt = 0 with the exact state; only those
     inside the closed piece with |min Φ_i| ≤ `max_depth` are kept. See [`grazejax.Contacts`][]
     for the signed depth (the indicator used to locate grazing bifurcations).
+    `atol=None`: scaled to the orbit's size, as in [`grazejax.find_periodic_orbit`][].
     """
+    atol = _atol_for(orbit, rtol, atol)
     pmap = _PeriodMap(scene=scene, end_impacts=0, solver=solver, rtol=float(rtol),
                       atol=float(atol), max_impacts=64, max_solver_steps=50_000)
     t0, T = float(orbit.t0), float(orbit.period)
@@ -1138,7 +1258,7 @@ def _contact_depths(pmap, scene, start, t_start, t_end, contacts, args, window):
 
 def grazing_branches(scene: Scene, orbit: Orbit, args=None, *, contact_tol: float = 1e-6,
                      depths=None, solver=None, rtol: float = 1e-10,
-                     atol: float = 1e-12) -> GrazingBranches:
+                     atol: float | None = None) -> GrazingBranches:
     r"""Monodromy matrices and multipliers of each branch of a grazing orbit's linearization.
 
     At a grazing contact the variational system is bivalued (paper eq. beta / betaexi): a
@@ -1171,6 +1291,7 @@ def grazing_branches(scene: Scene, orbit: Orbit, args=None, *, contact_tol: floa
     **Returns:** a [`grazejax.GrazingBranches`][]. An orbit without grazing contacts has a
     single branch (its own linearization).
     """
+    atol = _atol_for(orbit, rtol, atol)
     depths = np.asarray([1e-4 * 4.0 ** (-m) for m in range(6)] if depths is None else depths, float)
     pmap = _PeriodMap(scene=scene, end_impacts=0, solver=solver, rtol=float(rtol),
                       atol=float(atol), max_impacts=64, max_solver_steps=50_000)

@@ -196,6 +196,41 @@ def test_far_guess_ends_with_a_status_not_nan():
     assert np.all(np.isfinite(orbit.x0)) and np.isfinite(float(orbit.period))
 
 
+def test_failed_solve_makes_no_stability_claim():
+    """The forced oscillator x'' + 0.1x' + x = cos(0.8t), stop at σ = 1.8 (r = 0.8), from a
+    poor guess: Newton fails, and neither `stable` nor `summary()` claims (A5)."""
+    args = ex.impact_oscillator_args(zeta=0.05, A=1.0, omega=0.8, sigma=1.8, r=0.8)
+    orbit = find_periodic_orbit(OSC, [0.0, 0.0], 2 * math.pi / 0.8, args, fixed_period=True, **TOL)
+    assert OrbitStatus(int(orbit.status)) != OrbitStatus.SUCCESS
+    # At the last iterate the multipliers are inside the unit circle: no verdict anyway.
+    assert not bool(orbit.stable)
+    text = orbit.summary()
+    assert "NOT CONVERGED" in text and "no (A5) verdict" in text and "(A5) holds" not in text
+    assert orbit.settings.rtol == TOL["rtol"] and orbit.settings.atol == TOL["atol"]
+
+
+def test_tolerances_scale_with_the_orbit():
+    """A forced linear oscillator of amplitude 1e-9 (the stop far away): its multipliers are
+    the eigenvalues of e^{MT} whatever the amplitude, and x0 the closed-form response. With
+    the default atol (scaled to the orbit) both are right; an explicit atol = 1e-12 (1000 ×
+    the orbit's size × rtol) is reported, not passed off as converged."""
+    omega = 0.8
+    T = 2 * math.pi / omega
+    args = ex.impact_oscillator_args(zeta=0.05, A=1e-9, omega=omega, sigma=1.0, r=0.8)
+    rho = np.sort_complex(np.linalg.eigvals(scipy.linalg.expm(np.array([[0.0, 1.0], [-1.0, -0.1]]) * T)))
+    x_exact = np.asarray(ex.linear_response(0.0, args))
+    orbit = find_periodic_orbit(OSC, [1e-9, 0.0], T, args, fixed_period=True, rtol=1e-12)
+    assert int(orbit.status) == OrbitStatus.SUCCESS, orbit.message
+    np.testing.assert_allclose(np.sort_complex(np.asarray(orbit.multipliers)), rho, atol=1e-10)
+    np.testing.assert_allclose(orbit.x0, x_exact, rtol=1e-9, atol=1e-9 * 1e-9)
+    assert orbit.settings.atol <= 1e-20 and orbit.settings.newton_atol <= 1e-16
+    loose = find_periodic_orbit(OSC, [1e-9, 0.0], T, args, fixed_period=True, rtol=1e-12, atol=1e-12)
+    assert OrbitStatus(int(loose.status)) == OrbitStatus.LOOSE_ATOL
+    assert not bool(loose.stable) and "no (A5) verdict" in loose.summary()
+    # What it would have claimed: multipliers off by ~1e-3, orders above rtol.
+    assert np.max(np.abs(np.sort_complex(np.asarray(loose.multipliers)) - rho)) > 1e-5
+
+
 def test_fixed_coordinate_tangent_to_the_flow_is_reported():
     # At (2, 0) the flow is vertical: x1 = 2 is not a section.
     orbit = find_periodic_orbit(EX1DOF, [2.0, 0.0], 6.28, ex.ex1dof_args(-0.2), fix=0,
