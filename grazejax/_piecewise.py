@@ -21,6 +21,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._geometry import on_surface
 from ._scene import Scene, Surface
 from ._simulate import simulate
 
@@ -280,11 +281,8 @@ class PiecewiseScene(eqx.Module):
             f_plus = self.modes[self.mode_index(s.plus)].vector_field
             t = jnp.asarray(t0, float)
             phi = float(s.phi(t, x, args))
-            # Φ within round-off of 0: on Σ (the scale is that of the contact floor).
-            grad = np.asarray(jax.grad(lambda y, s=s, t=t: s.phi(t, y, args))(x))
-            scale = float(np.sum(np.abs(grad) * np.abs(np.asarray(x))))
-            on = abs(phi) <= 64 * np.finfo(float).eps * scale
-            if not on:
+            # On Σ: |Φ| within the contact floor, the loop's own definition (_geometry).
+            if not bool(on_surface(s.phi, t, x, args)):
                 mode = s.plus if phi > 0 else s.minus
             elif float(_rate(s.phi, t, x, args, f_plus)) > 0:
                 mode = s.plus
