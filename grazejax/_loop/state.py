@@ -56,32 +56,30 @@ class LoopState(eqx.Module):
     save_xs: Float[Array, "saves n"] | None
 
 
-# The state's buffers: written row by row, never read inside the loop (see `write_log`).
-BUFFERS = ("log_t", "log_pre", "log_post", "log_surface", "log_kind", "save_index", "save_xs")
+# The impact log, and all of the state's buffers: written row by row, never read inside the
+# loop (see `write_log`).
+LOG = ("log_t", "log_pre", "log_post", "log_surface", "log_kind")
+BUFFERS = LOG + ("save_index", "save_xs")
+
+
+def _set_fields(c: LoopState, names, values) -> LoopState:
+    """`c` with the fields `names` replaced by `values` (None allowed: a field left out)."""
+    return eqx.tree_at(
+        lambda z: tuple(getattr(z, k) for k in names), c, tuple(values),
+        is_leaf=lambda z: z is None,
+    )
 
 
 def without_buffers(c: LoopState) -> LoopState:
-    return eqx.tree_at(
-        lambda z: tuple(getattr(z, k) for k in BUFFERS), c, (None,) * len(BUFFERS),
-        is_leaf=lambda z: z is None,
-    )
+    return _set_fields(c, BUFFERS, (None,) * len(BUFFERS))
 
 
 def with_buffers(small: LoopState, full: LoopState) -> LoopState:
-    return eqx.tree_at(
-        lambda z: tuple(getattr(z, k) for k in BUFFERS), small,
-        tuple(getattr(full, k) for k in BUFFERS), is_leaf=lambda z: z is None,
-    )
-
-
-LOG = ("log_t", "log_pre", "log_post", "log_surface", "log_kind")
+    return _set_fields(small, BUFFERS, (getattr(full, k) for k in BUFFERS))
 
 
 def _without_log(c: LoopState) -> LoopState:
-    return eqx.tree_at(
-        lambda z: tuple(getattr(z, k) for k in LOG), c, (None,) * len(LOG),
-        is_leaf=lambda z: z is None,
-    )
+    return _set_fields(c, LOG, (None,) * len(LOG))
 
 
 def packing(template: LoopState):
@@ -120,10 +118,7 @@ def packing(template: LoopState):
     def unpack(packed) -> LoopState:
         groups, log = packed
         flat = [groups[g][o : o + size].reshape(shape) for g, o, size, shape in layout]
-        c = jax.tree.unflatten(treedef, flat)
-        return eqx.tree_at(
-            lambda z: tuple(getattr(z, k) for k in LOG), c, log, is_leaf=lambda z: z is None
-        )
+        return _set_fields(jax.tree.unflatten(treedef, flat), LOG, log)
 
     return pack, unpack
 
