@@ -39,9 +39,7 @@ import numpy as np
 import optimistix as optx
 
 from ._geometry import gap_rates
-from ._periodic import (
-    Orbit,
-    OrbitStatus,
+from ._orbit_common import (
     SolverSettings,
     _a5,
     _atol_for,
@@ -51,9 +49,8 @@ from ._periodic import (
     _solver_name,
     _state_at,
     _state_scale,
-    find_periodic_orbit,
-    orbit_contacts,
 )
+from ._periodic import Orbit, OrbitStatus, find_periodic_orbit, orbit_contacts
 from ._scene import Scene
 
 # --------------------------------------------------------------------------------------
@@ -74,6 +71,8 @@ class ContinuationStatus(enum.IntEnum):
     """The family ends at a grazing point and no other family continues from there."""
     START_FAILED = 4
     """The starting orbit could not be (re)solved at `mu_start`."""
+    LEFT_RANGE = 5
+    """ν left `nu_range` ([`grazejax.continue_grazing`][])."""
 
     @property
     def message(self) -> str:
@@ -85,6 +84,7 @@ class ContinuationStatus(enum.IntEnum):
             ContinuationStatus.BRANCH_ENDS: "the family ends at a grazing point: no periodic "
             "orbit continues from there on either side",
             ContinuationStatus.START_FAILED: "the starting orbit could not be solved at mu_start",
+            ContinuationStatus.LEFT_RANGE: "nu left nu_range",
         }[self]
 
 

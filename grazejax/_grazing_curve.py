@@ -1,0 +1,413 @@
+r"""Two-parameter continuation of grazing orbits: curves of grazing points in (μ, ν).
+
+[`grazejax.continue_grazing`][] follows a grazing periodic orbit (an orbit with a
+tangential contact with a surface Γ_i: Φ_i = 0 and dΦ_i/dt = 0 at some phase) as two
+parameters (μ, ν) vary, as COCO's `hspo` toolbox does for grazing curves. The orbit is
+phased to start *at* the contact, so the extended system is
+
+    P(x0, t0, T; μ, ν) − x0 = 0      (n rows: the orbit is periodic)
+    Φ_i(t0, x0; μ, ν) = 0            (the contact is on the surface)
+    dΦ_i/dt(t0, x0; μ, ν) = 0        (and tangential)
+
+in the unknowns Y = (s, x0, μ, ν), s = t0 for forced systems (the contact's phase, the
+period is T(μ, ν)) and s = T for autonomous ones (t0 is arbitrary there). That is n + 2
+equations in n + 3 unknowns: a curve, followed by pseudo-arclength continuation (tangent
+predictor, `optimistix` Newton corrector bordered by the arclength row).
+
+The period map P is the flow *without* the grazed surface: at the grazing orbit the
+surface is only touched, so leaving it out changes nothing there, and it keeps P smooth
+(with the surface, P has a square-root singularity at grazing, Nordmark's normal form,
+which Newton cannot cross). Other surfaces keep their impacts. Each point reports the
+smallest gap Φ_i sampled along the orbit (`min_gap`, ≈ 0 at the contact itself; clearly
+negative means the orbit crosses Γ_i elsewhere and the graze is not physical) and the
+contact's curvature d²Φ_i/dt² (> 0: a minimum of the gap, a genuine graze).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from typing import Any
+
+import diffrax
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
+
+from ._continuation import ContinuationStatus, GrazingPoint
+from ._geometry import gap_rates
+from ._orbit_common import (
+    SolverSettings,
+    _atol_for,
+    _PeriodMap,
+    _sampled,
+    _solver_name,
+    _state_scale,
+)
+from ._periodic import Orbit, OrbitStatus, orbit_contacts
+from ._scene import Scene
+
+
+class GrazingCurve(eqx.Module):
+    r"""A curve of grazing orbits in two parameters ([`grazejax.continue_grazing`][]).
+    NumPy arrays, one row per point, in order of computation.
+
+    **Fields:**
+
+    - `mu`, `nu`: the two parameters.
+    - `t0`, `x0`: the time and state of the grazing contact (Φ = 0, dΦ/dt = 0 there);
+      the orbit starts at it: `x0` is its state at phase `t0`.
+    - `period`: the orbit's period.
+    - `curvature`: d²Φ/dt² at the contact (> 0: the gap has a minimum there).
+    - `min_gap`: the smallest gap Φ along the orbit (samples plus the contact): ≈ 0 for a
+      physical grazing orbit, clearly negative if the orbit crosses the surface elsewhere.
+    - `num_impacts`: impacts per period on the *other* surfaces.
+    - `surface`: the index of the grazed surface.
+    - `status`: a [`grazejax.ContinuationStatus`][] code; `message` reads it.
+    - `settings`: the [`grazejax.SolverSettings`][] used.
+    """
+
+    mu: Any
+    nu: Any
+    t0: Any
+    x0: Any
+    period: Any
+    curvature: Any
+    min_gap: Any
+    num_impacts: Any
+    surface: int = eqx.field(static=True)
+    status: int = eqx.field(static=True)
+    settings: SolverSettings | None = eqx.field(static=True, default=None)
+
+    @property
+    def message(self) -> str:
+        return ContinuationStatus(self.status).message
+
+    def __len__(self) -> int:
+        return len(self.mu)
+
+    def to_csv(self, path=None) -> str:
+        """One row per point: mu, nu, t0, period, x0_i, curvature, min_gap, num_impacts.
+        Written to `path` if given."""
+        import csv
+        import io
+
+        out = io.StringIO()
+        w = csv.writer(out)
+        n = np.asarray(self.x0).shape[1] if len(self) else 0
+        w.writerow(["mu", "nu", "t0", "period"] + [f"x0_{i}" for i in range(n)]
+                   + ["curvature", "min_gap", "num_impacts"])
+        for i in range(len(self)):
+            values = [self.mu[i], self.nu[i], self.t0[i], self.period[i], *self.x0[i],
+                      self.curvature[i], self.min_gap[i]]
+            w.writerow([repr(float(v)) for v in values] + [int(self.num_impacts[i])])
+        text = out.getvalue()
+        if path is not None:
+            with open(path, "w", newline="") as f:
+                f.write(text)
+        return text
+
+
+# --------------------------------------------------------------------------------------
+# The extended system (compiled once per scene, surface and parameter functions)
+# --------------------------------------------------------------------------------------
+
+
+class _GrazingSystem(eqx.Module):
+    pmap: _PeriodMap = eqx.field(static=True)  # the flow without the grazed surface
+    phi: Callable = eqx.field(static=True)
+    args_of: Callable = eqx.field(static=True)
+    period_of: Callable | None = eqx.field(static=True)
+    fixed_period: bool = eqx.field(static=True)
+    root_finder: Any = eqx.field(static=True)
+    max_steps: int = eqx.field(static=True)
+
+
+def _unpack(system: _GrazingSystem, Y, t_fixed, T_fixed):
+    """(t0, T, x0, μ, ν) from Y = (s, x0, μ, ν)."""
+    mu, nu, x = Y[-2], Y[-1], Y[1:-2]
+    if system.fixed_period:
+        T = T_fixed if system.period_of is None else system.period_of(mu, nu)
+        return Y[0], T, x, mu, nu
+    return t_fixed, Y[0], x, mu, nu
+
+
+def _residual(system: _GrazingSystem, Y, t_fixed, T_fixed):
+    """The n + 2 rows of the extended system (NaN where the run failed)."""
+    t0, T, x, mu, nu = _unpack(system, Y, t_fixed, T_fixed)
+    args = system.args_of(mu, nu)
+    x_end, ok, _ = system.pmap(x, t0, T, args)
+    phi, rate, _ = gap_rates(system.phi, system.pmap.scene.vector_field, t0, x, args)
+    rows = jnp.concatenate([x_end - x, jnp.stack([phi, rate])])
+    return jnp.where(ok, rows, jnp.nan)
+
+
+@eqx.filter_jit
+def _corrector(system: _GrazingSystem, Y_pred, tangent, t_fixed, T_fixed):
+    """Newton on [G(Y); tangent·(Y − Y_pred)] = 0."""
+
+    def bordered(Y, _):
+        rows = _residual(system, Y, t_fixed, T_fixed)
+        return jnp.concatenate([rows, jnp.dot(tangent, Y - Y_pred)[None]])
+
+    solution = optx.root_find(bordered, system.root_finder, Y_pred, None,
+                              max_steps=system.max_steps, throw=False)
+    return solution.value, solution.result == optx.RESULTS.successful, solution.stats["num_steps"]
+
+
+@eqx.filter_jit
+def _jacobian(system: _GrazingSystem, Y, t_fixed, T_fixed):
+    """∂G/∂Y, (n + 2) × (n + 3), by forward mode (for the tangent)."""
+    return jax.jacfwd(lambda y: _residual(system, y, t_fixed, T_fixed))(Y)
+
+
+@eqx.filter_jit
+def _diagnostics(system: _GrazingSystem, Y, t_fixed, T_fixed, ts_unit):
+    """Curvature d²Φ/dt² at the contact, min Φ along the orbit, impacts on other surfaces."""
+    t0, T, x, mu, nu = _unpack(system, Y, t_fixed, T_fixed)
+    args = system.args_of(mu, nu)
+    _, _, curvature = gap_rates(system.phi, system.pmap.scene.vector_field, t0, x, args)
+    sol = _sampled(system.pmap, x, t0, t0 + T, args, t0 + T * ts_unit)
+    gaps = jax.vmap(lambda t, y: system.phi(t, y, args))(t0 + T * ts_unit, sol.xs)
+    return curvature, jnp.min(gaps), sol.num_impacts, T
+
+
+def _correct(system, Y_pred, tangent, t_fixed, T_fixed, ts_unit):
+    """Corrector, then the next tangent (null vector of ∂G/∂Y oriented along `tangent`)
+    and the point's diagnostics; `None` if the corrector failed."""
+    Y, converged, steps = _corrector(system, jnp.asarray(Y_pred), jnp.asarray(tangent), t_fixed,
+                                     T_fixed)
+    Y_np = np.asarray(Y)
+    if not (bool(converged) and np.all(np.isfinite(Y_np))):
+        return None
+    J = np.asarray(_jacobian(system, Y, t_fixed, T_fixed))
+    if not np.all(np.isfinite(J)):
+        return None
+    rhs = np.zeros(Y_np.shape[0])
+    rhs[-1] = 1.0
+    new_tangent = np.linalg.solve(np.vstack([J, np.asarray(tangent)[None]]), rhs)
+    new_tangent /= np.linalg.norm(new_tangent)
+    curvature, min_gap, k, T = (np.asarray(v) for v in _diagnostics(system, Y, t_fixed, T_fixed,
+                                                                      ts_unit))
+    return dict(Y=Y_np, tangent=new_tangent, steps=int(steps), curvature=float(curvature),
+                min_gap=min(float(min_gap), 0.0), num_impacts=int(k), period=float(T))
+
+
+# --------------------------------------------------------------------------------------
+# continue_grazing
+# --------------------------------------------------------------------------------------
+
+
+def _contact_of(scene, point, args, surface, kw):
+    """(surface, t, x, orbit) of the starting contact: the GrazingPoint's own, or the
+    contact of an Orbit with the smallest |virtual depth| (on `surface` if given)."""
+    if isinstance(point, GrazingPoint):
+        if surface is not None and surface != point.surface:
+            raise ValueError(f"the grazing point is on surface {point.surface}, not {surface}")
+        return point.surface, float(point.time), np.asarray(point.point, float), point.orbit
+    if not isinstance(point, Orbit):
+        raise TypeError("point must be a grazejax.GrazingPoint or a grazejax.Orbit")
+    if int(point.status) != OrbitStatus.SUCCESS:
+        raise ValueError(f"the starting orbit did not converge: {point.message}")
+    contacts = orbit_contacts(scene, point, args, solver=kw["solver"], rtol=kw["rtol"],
+                              atol=kw["atol"], max_depth=math.inf)
+    depth = np.abs(np.asarray(contacts.depth, float))
+    if surface is not None:
+        depth = np.where(np.asarray(contacts.surfaces) == surface, depth, np.inf)
+    if depth.size == 0 or not np.isfinite(depth.min()):
+        raise ValueError("the orbit has no contact (impact or close pass) to continue")
+    m = int(np.argmin(depth))
+    return (int(contacts.surfaces[m]), float(contacts.times[m]),
+            np.asarray(contacts.points[m], float), point)
+
+
+def _system_for(scene, surface, args_of, period_of, fixed, newton_tol, scale, max_newton_steps,
+                kw) -> _GrazingSystem:
+    # The same surfaces minus the grazed one: a Scene hashes by its fields, so repeated
+    # calls rebuild an equal scene and reuse the compiled programs.
+    others = [s for i, s in enumerate(scene.surfaces) if i != surface]
+    pmap = _PeriodMap(scene=Scene(scene.vector_field, others), end_impacts=0, **kw)
+    return _GrazingSystem(
+        pmap=pmap, phi=scene.surfaces[surface].phi, args_of=args_of, period_of=period_of,
+        fixed_period=fixed, root_finder=optx.Newton(rtol=newton_tol, atol=newton_tol * scale),
+        max_steps=int(max_newton_steps),
+    )
+
+
+def _curve(points, surface, status, t_fixed, settings, fixed, n) -> GrazingCurve:
+    Ys = np.stack([p["Y"] for p in points]) if points else np.zeros((0, n + 3))
+    t0 = Ys[:, 0] if fixed else np.full(len(Ys), t_fixed)
+
+    def col(key, dtype=float):
+        return np.asarray([p[key] for p in points], dtype)
+
+    return GrazingCurve(mu=Ys[:, -2], nu=Ys[:, -1], t0=t0, x0=Ys[:, 1:-2], period=col("period"),
+                        curvature=col("curvature"), min_gap=col("min_gap"),
+                        num_impacts=col("num_impacts", int), surface=int(surface),
+                        status=int(status), settings=settings)
+
+
+def _trace(system, first, mu_stop, nu_range, direction, ds, ds_min, ds_max, max_points,
+           t_fixed, T_fixed, ts_unit, bar):
+    """The pseudo-arclength loop: the points and why it stopped."""
+    points, current, h = [first], first, float(ds)
+    e_mu = np.zeros(first["Y"].shape[0])
+    e_mu[-2] = 1.0
+    while len(points) < max_points:
+        mu_now, nu_now = current["Y"][-2], current["Y"][-1]
+        if (mu_now - mu_stop) * direction >= 0:
+            return points, ContinuationStatus.REACHED_STOP
+        if not nu_range[0] <= nu_now <= nu_range[1]:
+            return points, ContinuationStatus.LEFT_RANGE
+        tangent = current["tangent"]
+        Y_pred = current["Y"] + h * tangent
+        if (Y_pred[-2] - mu_stop) * direction > 0 and tangent[-2] * direction > 0:
+            # Land on mu_stop exactly: the bordered row fixes μ = mu_stop.
+            frac = (mu_stop - mu_now) / (Y_pred[-2] - mu_now)
+            guess = current["Y"] + frac * h * tangent
+            guess[-2] = mu_stop
+            last = _correct(system, guess, e_mu, t_fixed, T_fixed, ts_unit)
+            if last is not None:
+                points.append(dict(last, tangent=direction * last["tangent"]))
+                return points, ContinuationStatus.REACHED_STOP
+        new = _correct(system, Y_pred, tangent, t_fixed, T_fixed, ts_unit)
+        accepted = (new is not None and float(np.dot(new["tangent"], tangent)) > 0.5
+                    and float(np.linalg.norm(new["Y"] - Y_pred)) <= 3 * h)
+        if accepted:
+            points.append(new)
+            current = new
+            if new["steps"] <= 3:
+                h = min(1.5 * h, ds_max)
+            if bar is not None:
+                bar.update(1)
+                bar.set_postfix(mu=f"{new['Y'][-2]:.5g}", nu=f"{new['Y'][-1]:.5g}", ds=f"{h:.2g}")
+            continue
+        h *= 0.5
+        if h < ds_min:
+            return points, ContinuationStatus.STEP_TOO_SMALL
+    return points, ContinuationStatus.MAX_POINTS
+
+
+def continue_grazing(
+    scene: Scene,
+    point: GrazingPoint | Orbit,
+    args_of: Callable[[Any, Any], Any],
+    mu_start: float,
+    nu_start: float,
+    mu_stop: float,
+    *,
+    nu_range: tuple[float, float] = (-math.inf, math.inf),
+    surface: int | None = None,
+    period_of: Callable[[Any, Any], Any] | None = None,
+    ds: float = 0.02,
+    ds_min: float | None = None,
+    ds_max: float = 0.1,
+    max_points: int = 200,
+    progress: bool = True,
+    rtol: float = 1e-10,
+    atol: float | None = None,
+    solver: diffrax.AbstractSolver | None = None,
+    newton_tol: float = 1e-10,
+    max_newton_steps: int = 10,
+    num_samples: int = 200,
+) -> GrazingCurve:
+    r"""Follow a grazing orbit in two parameters (μ, ν): the grazing curve.
+
+    **Arguments:**
+
+    - `scene`: a [`grazejax.Scene`][].
+    - `point`: where to start: a [`grazejax.GrazingPoint`][] (from
+      [`grazejax.continue_orbit`][]'s `branch.grazing`) or an [`grazejax.Orbit`][] near
+      grazing (its contact with the smallest |virtual depth| is used, see
+      [`grazejax.orbit_contacts`][]). It only needs to be close: the first point is solved
+      at μ = `mu_start` with ν free.
+    - `args_of`: `args_of(mu, nu) -> args`, traceable. Pass the same function object
+      across calls to reuse the compiled programs.
+    - `mu_start`, `nu_start`: the parameters at `point`.
+    - `mu_stop`: continuation goes from `mu_start` towards `mu_stop` (the first step's μ
+      moves that way) and ends there exactly, unless it stops earlier.
+    - `nu_range`: `(lo, hi)`: stop when ν leaves it.
+    - `surface`: the grazed surface's index (default: the point's, or the orbit's closest
+      contact's).
+    - `period_of`: forced systems (`fixed_period` orbits): the period as a function
+      `period_of(mu, nu)` (e.g. `lambda omega, sigma: 2 * jnp.pi / omega`); default: the
+      orbit's period, fixed.
+    - `ds`, `ds_min` (default `1e-3 * ds`), `ds_max`: arclength steps in (s, x0, μ, ν),
+      adapted as in [`grazejax.continue_orbit`][].
+    - `max_points`, `progress`: as in [`grazejax.continue_orbit`][].
+    - `rtol`, `atol`, `solver`: for [`grazejax.simulate`][] (`atol=None`: scaled to the
+      orbit's size); `newton_tol`, `max_newton_steps`: the corrector (absolute tolerance
+      `newton_tol` times the orbit's size).
+    - `num_samples`: samples per orbit for `min_gap`.
+
+    **Returns:** a [`grazejax.GrazingCurve`][].
+
+    **Example** (the forced oscillator x'' + 0.1x' + x = cos(ωt) with a stop at x = σ:
+    the grazing curve σ(ω) is the free response's amplitude):
+
+    ```python
+    from grazejax import examples as ex
+    scene = ex.impact_oscillator()
+    def args_of(omega, sigma):
+        return ex.impact_oscillator_args(zeta=0.05, omega=omega, sigma=sigma)
+    start = args_of(0.8, 3.0)
+    orbit = gj.find_periodic_orbit(scene, ex.linear_response(0.0, start), 2 * jnp.pi / 0.8,
+                                   start, fixed_period=True)
+    curve = gj.continue_grazing(scene, orbit, args_of, 0.8, 3.0, 0.7,
+                                period_of=lambda omega, sigma: 2 * jnp.pi / omega)
+    ```
+    """
+    if not isinstance(scene, Scene):
+        raise TypeError(f"scene must be a grazejax.Scene, got {type(scene).__name__}")
+    if not callable(args_of):
+        raise TypeError("args_of must be a function (mu, nu) -> args")
+    ds_min = 1e-3 * ds if ds_min is None else ds_min
+    if not (ds_min > 0 and ds_max >= ds >= ds_min):
+        raise ValueError("need 0 < ds_min <= ds <= ds_max")
+    if mu_start == mu_stop:
+        raise ValueError("mu_start == mu_stop: nothing to continue")
+    orbit = point.orbit if isinstance(point, GrazingPoint) else point
+    scale = (orbit.settings.state_scale if orbit.settings is not None
+             else _state_scale(np.asarray(orbit.x0)))
+    atol = _atol_for(orbit, rtol, atol)
+    kw = dict(solver=solver, rtol=float(rtol), atol=float(atol), max_impacts=64,
+              max_solver_steps=50_000)
+    settings = SolverSettings(
+        solver=_solver_name(solver), rtol=float(rtol), atol=float(atol),
+        newton_rtol=float(newton_tol), newton_atol=float(newton_tol) * scale,
+        max_steps=int(max_newton_steps), max_solver_steps=50_000, max_impacts=64,
+        state_scale=scale,
+    )
+    surface, t_c, x_c, orbit = _contact_of(scene, point, args_of(mu_start, nu_start), surface, kw)
+    fixed = bool(orbit.fixed_period)
+    n = x_c.shape[0]
+    system = _system_for(scene, surface, args_of, period_of, fixed, newton_tol, scale,
+                         max_newton_steps, kw)
+    t_fixed, T_fixed = jnp.asarray(t_c), jnp.asarray(float(orbit.period))
+    ts_unit = jnp.linspace(0.0, 1.0, int(num_samples), endpoint=False)
+    direction = 1.0 if mu_stop > mu_start else -1.0
+
+    # The first point: μ = mu_start exactly (the bordered row fixes μ), ν free.
+    Y0 = np.concatenate([[t_c if fixed else float(orbit.period)], x_c, [mu_start, nu_start]])
+    e_mu = np.zeros(n + 3)
+    e_mu[-2] = 1.0
+    first = _correct(system, Y0, e_mu, t_fixed, T_fixed, ts_unit)
+    if first is None:
+        return _curve([], surface, ContinuationStatus.START_FAILED, t_c, settings, fixed, n)
+    # Its tangent comes out with dμ > 0 (oriented along e_μ): turn it towards mu_stop.
+    first = dict(first, tangent=direction * first["tangent"])
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=max_points, desc="grazejax.continue_grazing", unit="pt")
+        bar.update(1)
+    try:
+        points, status = _trace(system, first, mu_stop, nu_range, direction, ds, ds_min, ds_max,
+                                max_points, t_fixed, T_fixed, ts_unit, bar)
+    finally:
+        if bar is not None:
+            bar.close()
+    return _curve(points, surface, status, t_c, settings, fixed, n)

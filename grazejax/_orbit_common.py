@@ -1,0 +1,173 @@
+"""What periodic orbits and their continuation share: the period map, its linearization,
+sampling, the (A5) verdict and the tolerance conventions.
+
+[`grazejax.find_periodic_orbit`][], [`grazejax.continue_orbit`][] and
+[`grazejax.continue_grazing`][] all solve for fixed points of the same period map with the
+same tolerance scaling; keeping it here (rather than in `_periodic`) lets each of them
+import it without reaching into another's private helpers.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import equinox as eqx
+import jax
+import jax.lax as lax
+import jax.numpy as jnp
+import numpy as np
+
+from ._flow import short_free_flow
+from ._scene import Scene
+from ._simulate import simulate
+from ._status import Status
+
+
+@dataclasses.dataclass(frozen=True)
+class SolverSettings:
+    """The settings an [`grazejax.Orbit`][] or [`grazejax.Branch`][] was computed with.
+
+    - `solver`: the Diffrax solver's class name (`"default"` for `simulate`'s own choice).
+    - `rtol`, `atol`: the simulation's tolerances, `atol` as actually used (after scaling
+      by `state_scale` when it was left to default).
+    - `newton_rtol`, `newton_atol`: the root finder's tolerances (NaN for a user's
+      `root_finder` without them).
+    - `max_steps`: Newton iterations allowed; `max_solver_steps`, `max_impacts`: for
+      `simulate`.
+    - `state_scale`: the orbit's size used to scale absolute tolerances (max |x|).
+    """
+
+    solver: str
+    rtol: float
+    atol: float
+    newton_rtol: float
+    newton_atol: float
+    max_steps: int
+    max_solver_steps: int
+    max_impacts: int
+    state_scale: float
+
+
+# Default absolute tolerances, relative to rtol × the orbit's size: atol = 1e-2 · rtol · size
+# (1e-12 for rtol = 1e-10 and an orbit of size 1, the former fixed default).
+_ATOL_PER_RTOL = 1e-2
+
+
+def _state_scale(*arrays) -> float:
+    """max |x| over concrete arrays (1 if they are all zero or not finite)."""
+    values = [np.max(np.abs(np.asarray(a, float))) for a in arrays if np.size(a)]
+    values = [v for v in values if np.isfinite(v)]
+    s = max(values) if values else 0.0
+    return float(s) if s > 0 else 1.0
+
+
+def _atol_for(orbit, rtol, atol) -> float:
+    """`atol`, or (None) the default scaled to the orbit's size."""
+    if atol is not None:
+        return float(atol)
+    settings = getattr(orbit, "settings", None)
+    scale = settings.state_scale if settings is not None else _state_scale(orbit.x0)
+    return _ATOL_PER_RTOL * float(rtol) * scale
+
+
+def _solver_name(solver) -> str:
+    return "default" if solver is None else type(solver).__name__
+
+
+def _a5(multipliers, fixed_period: bool):
+    modulus = jnp.abs(multipliers)
+    if fixed_period:
+        return jnp.all(modulus < 1) & jnp.all(jnp.isfinite(modulus))
+    # Leave out the multiplier nearest to 1 (the trivial one, along f).
+    trivial = jnp.argmin(jnp.abs(multipliers - 1.0), axis=-1)
+    others = jnp.where(
+        jnp.arange(multipliers.shape[-1]) == trivial[..., None], 0.0, modulus
+    )
+    return jnp.all(others < 1, axis=-1) & jnp.all(jnp.isfinite(modulus), axis=-1)
+
+
+class _PeriodMap(eqx.Module):
+    """x0 ↦ P(x0, T) for one scene and one choice of where the period ends (all static)."""
+
+    scene: Scene = eqx.field(static=True)
+    end_impacts: int = eqx.field(static=True)  # 0: time-T map; k: ends just after impact k
+    solver: Any = eqx.field(static=True)
+    rtol: float = eqx.field(static=True)
+    atol: float = eqx.field(static=True)
+    max_impacts: int = eqx.field(static=True)
+    max_solver_steps: int = eqx.field(static=True)
+    adjoint: Any = eqx.field(static=True, default=None)  # simulate's; Newton's runs only
+
+    def run(self, x0, t0, t1, args, max_impacts):
+        return simulate(
+            self.scene, x0, t0, t1, args, solver=self.solver, rtol=self.rtol, atol=self.atol,
+            max_impacts=max_impacts, max_steps=self.max_solver_steps, direction=1,
+            adjoint=self.adjoint,
+        )
+
+    def __call__(self, x0, t0, T, args):
+        """Returns `(x_end, ok, solution)`."""
+        if self.end_impacts == 0:
+            sol = self.run(x0, t0, t0 + T, args, self.max_impacts)
+            ok = sol.status == Status.SUCCESS
+            return sol.x_final, ok, sol
+        # Run to the k-th impact (stops right after it), then move along the post-impact
+        # flow by what is left of T: exact at the solution, smooth in (x0, T) there. The
+        # horizon 2T only bounds a run whose closing impact never comes.
+        sol = self.run(x0, t0, t0 + 2 * jnp.abs(T), args, self.end_impacts)
+        ok = sol.status == Status.MAX_IMPACTS
+        theta = sol.t_final
+        x_end = short_free_flow(self.scene.vector_field, theta, sol.x_final, t0 + T - theta, args)
+        return x_end, ok, sol
+
+
+@eqx.filter_jit
+def _run(pmap: _PeriodMap, x0, t0, t1, args):
+    return pmap.run(x0, t0, t1, args, pmap.max_impacts)
+
+
+def _linearize(pmap: _PeriodMap, x, t0, T, args, args_dot=None):
+    """P(x, T) with ∂P/∂x (the monodromy), ∂P/∂T, the derivative along `args_dot` in
+    parameter space (continuation's ∂P/∂μ; zero if not given), and the run behind it.
+
+    One compiled program per period map, shared by the phase refinement, the diagnostics
+    of a solve, the Floquet factors, the grazing branches and continuation.
+    """
+    if args_dot is None:
+        args_dot = jax.tree.map(jnp.zeros_like, args)
+    x_end, jac_x, jac_T, jac_args, ok, sol = _linearize_all(pmap, x, t0, T, args, args_dot)
+    return x_end, jac_x, jac_T, ok, sol, jac_args
+
+
+@eqx.filter_jit
+def _linearize_all(pmap: _PeriodMap, x, t0, T, args, args_dot):
+    x, T, args, args_dot = lax.stop_gradient((x, T, args, args_dot))
+    n = x.shape[0]
+
+    def period_map(z):
+        # One batch of n + 2 tangents: x, T and the parameter direction, in one program.
+        a = jax.tree.map(lambda p, d: p + z[n + 1] * d, args, args_dot)
+        x_end, ok, sol = pmap(z[:n], t0, z[n], a)
+        return x_end, (x_end, ok, sol)
+
+    z = jnp.concatenate([x, jnp.asarray(T, x.dtype)[None], jnp.zeros((1,), x.dtype)])
+    jac, (x_end, ok, sol) = jax.jacfwd(period_map, has_aux=True)(z)
+    return x_end, jac[:, :n], jac[:, n], jac[:, n + 1], ok, sol
+
+
+@eqx.filter_jit
+def _sampled(pmap: _PeriodMap, x0, t0, t1, args, ts):
+    sol = simulate(
+        pmap.scene, x0, t0, t1, args, solver=pmap.solver, rtol=pmap.rtol, atol=pmap.atol,
+        max_impacts=pmap.max_impacts, max_steps=pmap.max_solver_steps, direction=1, saveat=ts,
+    )
+    return sol
+
+
+def _state_at(pmap: _PeriodMap, x0, t0, t, args):
+    """x(t) (left-continuous) on the trajectory from (t0, x0)."""
+    if t <= t0:
+        return np.asarray(x0, float)
+    sol = _run(pmap, jnp.asarray(x0, float), jnp.asarray(t0, float), jnp.asarray(t, float), args)
+    return np.asarray(sol.x_final)

@@ -1,0 +1,121 @@
+"""Two-parameter continuation of grazing orbits, against closed forms and SciPy."""
+
+import math
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import grazejax as gj
+from grazejax import examples as ex
+
+from .test_periodic import OSC, TOL
+
+ZETA = 0.05  # the oscillator's field is x'' + 2ζx' + x = cos(ωt): x'' + 0.1x' + x
+
+
+def _osc(omega, sigma):
+    return ex.impact_oscillator_args(zeta=ZETA, A=1.0, omega=omega, sigma=sigma, r=0.8)
+
+
+def _period(omega, sigma):
+    return 2 * jnp.pi / omega
+
+
+def _amplitude(omega):
+    """The non-impacting response's amplitude A(ω): the grazing curve σ_graz(ω)."""
+    return 1 / np.sqrt((1 - omega**2) ** 2 + (2 * ZETA * omega) ** 2)
+
+
+@pytest.fixture(scope="module")
+def forced_curve():
+    omega, sigma = 0.8, 3.0  # the free response clears the stop by 0.29 here
+    args = _osc(omega, sigma)
+    orbit = gj.find_periodic_orbit(OSC, np.asarray(ex.linear_response(0.0, args)),
+                                   2 * math.pi / omega, args, fixed_period=True, **TOL)
+    assert int(orbit.status) == gj.OrbitStatus.SUCCESS
+    return gj.continue_grazing(OSC, orbit, _osc, omega, sigma, 0.6, period_of=_period,
+                               progress=False, **TOL)
+
+
+def test_forced_oscillator_grazing_curve_matches_closed_form(forced_curve):
+    """σ_graz(ω) = A(ω), the contact at the response's maximum (x, v) = (A, 0), at the
+    phase ωt0 ≡ φ = atan2(2ζω, 1 − ω²) (mod 2π)."""
+    curve = forced_curve
+    assert gj.ContinuationStatus(curve.status) == gj.ContinuationStatus.REACHED_STOP
+    assert curve.mu[0] == 0.8 and curve.mu[-1] == 0.6 and len(curve) >= 5
+    assert np.all(np.diff(curve.mu) < 0)
+    # The error budget: the fixed point of the period map inherits the one-period
+    # integration error (≤ ~1e3 local errors of rtol·|x|, a generous step count),
+    # amplified by ‖(I − M)⁻¹‖ ≤ 1/(1 − e^{−ζT}) (M = monodromy, |ρ| = e^{−ζT}); Newton's
+    # own error (newton_tol = 1e-10, quadratic) is far below. With rtol = 1e-12,
+    # |x| ≤ 2.8 and T ≤ 2π/0.6 this is ≤ 1e3 · 1e-12 · 2.8 · 3.1 ≈ 9e-9: tolerance 1e-8.
+    T = 2 * np.pi / curve.mu
+    bound = 1e3 * TOL["rtol"] * np.max(curve.nu) / (1 - np.exp(-ZETA * T))
+    assert np.all(bound <= 1e-8)
+    exact = _amplitude(curve.mu)
+    np.testing.assert_allclose(curve.nu, exact, rtol=0, atol=1e-8)
+    np.testing.assert_allclose(curve.x0[:, 0], exact, rtol=0, atol=1e-8)
+    np.testing.assert_allclose(curve.x0[:, 1], 0.0, atol=1e-8)
+    phase = np.arctan2(2 * ZETA * curve.mu, 1 - curve.mu**2)
+    wrapped = np.angle(np.exp(1j * (curve.mu * curve.t0 - phase)))
+    np.testing.assert_allclose(wrapped, 0.0, atol=1e-7)
+    np.testing.assert_allclose(curve.period, T, rtol=1e-14)
+    # A genuine graze: the gap has a minimum there (Φ̈ = A − cos(ωt0)... > 0) and the orbit
+    # stays on the free side elsewhere; no impact.
+    assert np.all(curve.curvature > 0) and np.all(curve.min_gap > -1e-8)
+    assert np.all(curve.num_impacts == 0)
+
+
+def test_forced_grazing_orbits_are_periodic_and_tangent_by_scipy(forced_curve):
+    """Independently of grazejax's integrator: from each third point's contact, SciPy's
+    DOP853 returns to the same state after one period, and x never exceeds σ."""
+    from scipy.integrate import solve_ivp
+
+    curve = forced_curve
+    for i in range(0, len(curve), 3):
+        omega, sigma, t0 = float(curve.mu[i]), float(curve.nu[i]), float(curve.t0[i])
+        T = 2 * math.pi / omega
+
+        def field(t, y, omega=omega):
+            return [y[1], -2 * ZETA * y[1] - y[0] + math.cos(omega * t)]
+
+        sol = solve_ivp(field, (t0, t0 + T), curve.x0[i], method="DOP853", rtol=1e-13,
+                        atol=1e-14, dense_output=True)
+        np.testing.assert_allclose(sol.y[:, -1], curve.x0[i], atol=1e-8)
+        x = sol.sol(np.linspace(t0, t0 + T, 2001))[0]
+        assert np.max(x) <= sigma + 1e-8 and abs(x[0] - sigma) <= 1e-8
+
+
+def _ex1dof_wall():
+    """ex1dof with its wall at x1 = w (args["w"]): Ψ_μ reaches x1 = −μ, so the orbit
+    grazes the wall on the line w = −μ, period 2π (an autonomous closed form)."""
+    base = ex.ex1dof()
+    wall = gj.Surface(phi=lambda t, x, args: x[0] - args["w"], jump=base.surfaces[0].jump,
+                      where=lambda t, x, args: x[1] <= 0)
+    return gj.Scene(base.vector_field, [wall])
+
+
+def _ex1dof_wall_args(mu, w):
+    return dict(ex.ex1dof_args(mu), w=jnp.asarray(w, float))
+
+
+@pytest.mark.slow
+def test_autonomous_grazing_curve_matches_closed_form():
+    scene = _ex1dof_wall()
+    orbit = gj.find_periodic_orbit(scene, [1.7, 0.0], 6.28, _ex1dof_wall_args(-0.3, 0.0), fix=1,
+                                   start_at_impact=False, **TOL)
+    assert int(orbit.status) == gj.OrbitStatus.SUCCESS and int(orbit.num_impacts) == 0
+    curve = gj.continue_grazing(scene, orbit, _ex1dof_wall_args, -0.3, 0.0, -0.1,
+                                progress=False, **TOL)
+    assert gj.ContinuationStatus(curve.status) == gj.ContinuationStatus.REACHED_STOP
+    assert curve.mu[-1] == -0.1 and len(curve) >= 3
+    # The cycle attracts weakly (1 − ρ = 1 − e^{−2πε(1+μ)²} ≥ 3e-4): the same budget as
+    # above, 1e3 · rtol · |x| / (1 − ρ) ≤ 1e3 · 1e-12 · 2 / 3e-4 ≈ 7e-6.
+    rho = np.exp(-2 * np.pi * 1e-4 * (1 + curve.mu) ** 2)
+    bound = 1e3 * TOL["rtol"] * 2 / (1 - rho)
+    np.testing.assert_array_less(np.abs(curve.nu + curve.mu), bound)
+    np.testing.assert_array_less(np.abs(curve.period - 2 * np.pi), 10 * bound)
+    np.testing.assert_allclose(curve.x0[:, 0], curve.nu, atol=1e-12)  # on the wall
+    np.testing.assert_array_less(np.abs(curve.x0[:, 1]), bound)       # tangentially
+    assert np.all(curve.curvature > 0)
