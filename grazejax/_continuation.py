@@ -512,187 +512,277 @@ def continue_orbit(
     n = x_s.shape[0]
     if int(start.status) != OrbitStatus.SUCCESS:
         return _empty_branch(n, ContinuationStatus.START_FAILED, settings)
-    t0 = jnp.asarray(t_s)
-
-    def phase_of(x, f_x, j_old=None):
-        if fixed:
-            return jnp.zeros(n), 0.0, -1
-        f_x = np.asarray(f_x)
-        j = j_old
-        if j is None or abs(f_x[j]) < 0.1 * np.max(np.abs(f_x)):
-            j = int(np.argmax(np.abs(f_x)))
-        return jnp.asarray(np.eye(n)[j]), float(x[j]), j
-
-    def pack(T, x, mu):
-        return jnp.asarray(np.concatenate([[] if fixed else [T], x, [mu]]))
-
-    Y = pack(float(start.period), np.asarray(start.x0), mu_start)
-    f0 = np.asarray(scene.vector_field(t0, start.x0, args_of(mu_start)))
-    e_j, c, j = phase_of(np.asarray(start.x0), f0)
-    # The first point at μ = mu_start exactly (the bordered row fixes μ); its tangent
-    # comes out oriented towards increasing μ.
-    e_mu = jnp.zeros(Y.shape[0]).at[-1].set(1.0)
-    first = _correct(fam, Y, e_mu, t0, e_j, c, T_fixed, ts_unit)
-    if not bool(first["good"]):
+    tracer = _Tracer(scene=scene, fam=fam, args_of=args_of, kw=kw, fixed=fixed, n=n,
+                     t0=jnp.asarray(t_s), T_fixed=T_fixed, ts_unit=ts_unit, mu_stop=mu_stop,
+                     direction=direction, ds=float(ds), ds_min=float(ds_min),
+                     ds_max=float(ds_max), max_points=max_points, locate_tol=locate_tol,
+                     switch_branches=switch_branches)
+    if not tracer.begin(start, mu_start):
         return _empty_branch(n, ContinuationStatus.START_FAILED, settings)
-    first = dict(first, tangent=direction * first["tangent"])
-    points = [_record(first, fixed)]
-    current = first
-    grazing: list[GrazingPoint] = []
-    special: list[SpecialPoint] = []
-    status = ContinuationStatus.MAX_POINTS
-    h = float(ds)
-    approach_tried = -1
-
     bar = None
     if progress:
         from tqdm.auto import tqdm
 
         bar = tqdm(total=max_points, desc="grazejax.continue_orbit", unit="pt")
         bar.update(1)
+    tracer.bar = bar
+    try:
+        status = tracer.run()
+    finally:
+        if bar is not None:
+            bar.close()
+    return _branch(tracer.points, tracer.grazing, status, n, float(t_s), settings,
+                   tuple(tracer.special))
 
-    def correct_from(point, step, tangent_):
-        e, cc, _ = phase_of(np.asarray(_x_of(point["Y"], fixed)), point["f_x"], j)
+
+@dataclasses.dataclass(eq=False)
+class _Tracer:
+    """The state of one `continue_orbit` run and its steps (mutable, host side).
+
+    Each `_step` is one predictor-corrector attempt: it lands on `mu_stop`, accepts a
+    point (crossing a grazing point by persistence), approaches grazing along an
+    impacting family, shrinks the step, or handles the end of the family (branch
+    switching); it returns a status to stop with, or None to go on.
+    """
+
+    scene: Scene
+    fam: _Family
+    args_of: Callable
+    kw: dict
+    fixed: bool
+    n: int
+    t0: Any
+    T_fixed: Any
+    ts_unit: Any
+    mu_stop: float
+    direction: float
+    ds: float
+    ds_min: float
+    ds_max: float
+    max_points: int
+    locate_tol: float
+    switch_branches: bool
+    bar: Any = None
+    j: int = -1
+    h: float = 0.0
+    approach_tried: int = -1
+    current: dict = dataclasses.field(default_factory=dict)
+    points: list = dataclasses.field(default_factory=list)
+    grazing: list = dataclasses.field(default_factory=list)
+    special: list = dataclasses.field(default_factory=list)
+
+    def phase_of(self, x, f_x, j_old=None):
+        if self.fixed:
+            return jnp.zeros(self.n), 0.0, -1
+        f_x = np.asarray(f_x)
+        j = j_old
+        if j is None or abs(f_x[j]) < 0.1 * np.max(np.abs(f_x)):
+            j = int(np.argmax(np.abs(f_x)))
+        return jnp.asarray(np.eye(self.n)[j]), float(x[j]), j
+
+    def correct_from(self, point, step, tangent_):
+        e, cc, _ = self.phase_of(np.asarray(_x_of(point["Y"], self.fixed)), point["f_x"], self.j)
         Y_pred = point["Y"] + step * tangent_
-        return _correct(fam, Y_pred, tangent_, t0, e, cc, T_fixed, ts_unit)
+        return _correct(self.fam, Y_pred, tangent_, self.t0, e, cc, self.T_fixed, self.ts_unit)
 
-    while len(points) < max_points:
+    def _natural(self):
+        return _natural_at(self.fam, self.current, self.phase_of, self.j, self.fixed, self.t0,
+                           self.T_fixed, self.ts_unit)
+
+    def _tick(self, count=1, **postfix):
+        if self.bar is not None:
+            self.bar.update(count)
+            if postfix:
+                self.bar.set_postfix(**postfix)
+
+    def _add_special(self, new):
+        self.special.extend(_special_points(
+            self._natural(), self.points[-2] if len(self.points) > 1 else None, self.current,
+            new, self.fixed, self.locate_tol, float(self.t0)))
+
+    def _take_other(self, located, other, kind):
+        """Record the grazing point and go on along the other family from `other`."""
+        self.grazing.append(dataclasses.replace(
+            located, impacts_after=int(other["num_impacts"]), kind=kind))
+        self.points.append(_record(other, self.fixed))
+        self.current = other
+        self.h = self.ds
+
+    def begin(self, start: Orbit, mu_start) -> bool:
+        """The first point at μ = mu_start exactly (the bordered row fixes μ); its
+        tangent comes out oriented towards increasing μ, then towards mu_stop."""
+        x0 = np.asarray(start.x0)
+        Y = jnp.asarray(np.concatenate([[] if self.fixed else [float(start.period)], x0,
+                                        [mu_start]]))
+        f0 = np.asarray(self.scene.vector_field(self.t0, start.x0, self.args_of(mu_start)))
+        e_j, c, self.j = self.phase_of(x0, f0)
+        e_mu = jnp.zeros(Y.shape[0]).at[-1].set(1.0)
+        first = _correct(self.fam, Y, e_mu, self.t0, e_j, c, self.T_fixed, self.ts_unit)
+        if not bool(first["good"]):
+            return False
+        first = dict(first, tangent=self.direction * first["tangent"])
+        self.points, self.current, self.h = [_record(first, self.fixed)], first, self.ds
+        return True
+
+    def run(self) -> ContinuationStatus:
+        while len(self.points) < self.max_points:
+            status = self._step()
+            if status is not None:
+                return status
+        return ContinuationStatus.MAX_POINTS
+
+    def _step(self):
+        current, direction, h = self.current, self.direction, self.h
         mu_now = float(current["Y"][-1])
-        if (mu_now - mu_stop) * direction >= 0:
-            status = ContinuationStatus.REACHED_STOP
-            break
-        e_j, c, j = phase_of(np.asarray(_x_of(current["Y"], fixed)), current["f_x"], j)
+        if (mu_now - self.mu_stop) * direction >= 0:
+            return ContinuationStatus.REACHED_STOP
+        e_j, c, self.j = self.phase_of(np.asarray(_x_of(current["Y"], self.fixed)),
+                                       current["f_x"], self.j)
         tangent = current["tangent"]
-        mu_pred = mu_now + h * float(tangent[-1])
-        if (mu_pred - mu_stop) * direction > 0 and float(tangent[-1]) * direction > 0:
-            # Land on mu_stop exactly: a corrector at fixed μ from the interpolated guess.
-            frac = (mu_stop - mu_now) / (mu_pred - mu_now)
-            guess = (current["Y"] + frac * h * tangent).at[-1].set(mu_stop)
-            last = _natural(fam, guess, t0, e_j, c, T_fixed, ts_unit)
-            if bool(last["good"]) and int(last["num_impacts"]) == int(current["num_impacts"]):
-                natural = _natural_at(fam, current, phase_of, j, fixed, t0, T_fixed, ts_unit)
-                special.extend(_special_points(natural, points[-2] if len(points) > 1 else None,
-                                               current, last, fixed, locate_tol, float(t0)))
-                points.append(_record(last, fixed))
-                status = ContinuationStatus.REACHED_STOP
-                if bar is not None:
-                    bar.update(1)
-                break
+        if self._land_on_stop(mu_now, tangent, e_j, c):
+            return ContinuationStatus.REACHED_STOP
         Y_pred = current["Y"] + h * tangent
-        new = _correct(fam, Y_pred, tangent, t0, e_j, c, T_fixed, ts_unit)
+        new = _correct(self.fam, Y_pred, tangent, self.t0, e_j, c, self.T_fixed, self.ts_unit)
         k_now = int(current["num_impacts"])
-        scale = 1.0 + float(jnp.max(jnp.abs(current["Y"])))
         accepted = (
             bool(new["good"]) and float(jnp.dot(new["tangent"], tangent)) > 0.5
             and float(jnp.linalg.norm(new["Y"] - Y_pred)) <= 3 * h
         )
         boundary = None
         if accepted and int(new["num_impacts"]) != k_now:
-            # The impact count changed: bisect along the arclength for the grazing point.
-            graze, inner = _locate(correct_from, current, h, tangent, k_now, locate_tol)
-            gap = float(jnp.max(jnp.abs((inner["Y"] - graze["Y"])[:-1])))
-            if inner is not graze and gap <= 1e-2 * scale:
-                # Persistence: the family goes on, with the other impact count.
-                grazing.append(_grazing_point(scene, graze, args_of, fam, t0, T_fixed, fixed,
-                                              k_now, int(new["num_impacts"]), "persistence", kw))
-                points.extend([_record(graze, fixed), _record(inner, fixed)])
-            else:
-                # The other count was found far away: the family ends at `graze`.
-                accepted, boundary = False, graze
+            accepted, boundary = self._cross_grazing(new, tangent, k_now)
         if accepted:
-            if int(new["num_impacts"]) == int(current["num_impacts"]):
-                natural = _natural_at(fam, current, phase_of, j, fixed, t0, T_fixed, ts_unit)
-                special.extend(_special_points(natural, points[-2] if len(points) > 1 else None,
-                                               current, new, fixed, locate_tol, float(t0)))
-            points.append(_record(new, fixed))
-            current = new
-            if int(new["steps"]) <= 3:
-                h = min(1.5 * h, ds_max)
-            if bar is not None:
-                bar.update(1)
-                bar.set_postfix(mu=f"{float(new['Y'][-1]):.5g}", impacts=int(new["num_impacts"]),
-                                ds=f"{h:.2g}")
-            continue
-        if boundary is None and k_now > 0 and approach_tried != len(points):
-            # An impacting family that the corrector cannot follow: if its impact speed is
-            # going to 0, approach grazing along the family parametrised by that speed.
-            approach_tried = len(points)
-            natural = _natural_at(fam, current, phase_of, j, fixed, t0, T_fixed, ts_unit)
-            reach = 4 * h * abs(float(tangent[-1]))
-            found = _approach_grazing(natural, points, k_now, locate_tol, reach=reach)
-            if found is not None:
-                mu_star, Y_star, new_points = found
-                points.extend(_record(pt, fixed) for pt in new_points)
-                last = new_points[-1] if new_points else current
-                end = dict(last, Y=jnp.asarray(Y_star))
-                located = _grazing_point(scene, end, args_of, fam, t0, T_fixed, fixed, k_now,
-                                         None, "end", kw).point
-                located = dataclasses.replace(located, mu=mu_star)
-                switched = None
-                if switch_branches:
-                    # Arrival: from the family's last point towards μ* (near a fold the
-                    # tangent's μ component can point either way).
-                    gap_mu = mu_star - float(np.asarray(last["Y"])[-1])
-                    arrival = float(np.sign(gap_mu)) if gap_mu != 0 else (
-                        1.0 if float(tangent[-1]) >= 0 else -1.0)
-                    switched = _switch(fam, end, args_of, t0, T_fixed, fixed, k_now, arrival,
-                                       ds, phase_of, j, ts_unit)
-                if switched is None:
-                    grazing.append(located)
-                    status = ContinuationStatus.BRANCH_ENDS
-                    break
-                other, kind = switched
-                grazing.append(dataclasses.replace(
-                    located, impacts_after=int(other["num_impacts"]), kind=kind))
-                points.append(_record(other, fixed))
-                current = other
-                h = float(ds)
-                if bar is not None:
-                    bar.update(len(new_points) + 1)
-                continue
+            self._accept(new)
+            return None
+        if boundary is None and k_now > 0 and self.approach_tried != len(self.points):
+            outcome = self._approach(tangent, k_now)
+            if outcome is not _FALL_THROUGH:
+                return outcome
         if boundary is None:
-            h *= 0.5
-            if h >= ds_min:
-                continue
-            h = float(ds_min)
+            self.h *= 0.5
+            if self.h >= self.ds_min:
+                return None
+            self.h = self.ds_min
             # The corrector fails at every step size: locate where the family ends (the
             # last arclength at which it converges with k_now impacts).
-            boundary, _ = _locate(correct_from, current, 2 * ds_min, tangent, k_now, locate_tol)
-        located = _grazing_point(scene, boundary, args_of, fam, t0, T_fixed, fixed, k_now, None,
-                                 "end", kw)
+            boundary, _ = _locate(self.correct_from, current, 2 * self.ds_min, tangent, k_now,
+                                  self.locate_tol)
+        return self._family_ends(boundary, tangent, k_now)
+
+    def _land_on_stop(self, mu_now, tangent, e_j, c) -> bool:
+        """If the step would pass mu_stop, land on it exactly: a corrector at fixed μ from
+        the interpolated guess (True if that worked on the same family)."""
+        current, h = self.current, self.h
+        mu_pred = mu_now + h * float(tangent[-1])
+        if not ((mu_pred - self.mu_stop) * self.direction > 0
+                and float(tangent[-1]) * self.direction > 0):
+            return False
+        frac = (self.mu_stop - mu_now) / (mu_pred - mu_now)
+        guess = (current["Y"] + frac * h * tangent).at[-1].set(self.mu_stop)
+        last = _natural(self.fam, guess, self.t0, e_j, c, self.T_fixed, self.ts_unit)
+        if not (bool(last["good"]) and int(last["num_impacts"]) == int(current["num_impacts"])):
+            return False
+        self._add_special(last)
+        self.points.append(_record(last, self.fixed))
+        self._tick()
+        return True
+
+    def _cross_grazing(self, new, tangent, k_now):
+        """The impact count changed: bisect along the arclength for the grazing point.
+        Returns (accepted, boundary)."""
+        current = self.current
+        scale = 1.0 + float(jnp.max(jnp.abs(current["Y"])))
+        graze, inner = _locate(self.correct_from, current, self.h, tangent, k_now,
+                               self.locate_tol)
+        gap = float(jnp.max(jnp.abs((inner["Y"] - graze["Y"])[:-1])))
+        if inner is not graze and gap <= 1e-2 * scale:
+            # Persistence: the family goes on, with the other impact count.
+            self.grazing.append(_grazing_point(
+                self.scene, graze, self.args_of, self.fam, self.t0, self.T_fixed, self.fixed,
+                k_now, int(new["num_impacts"]), "persistence", self.kw))
+            self.points.extend([_record(graze, self.fixed), _record(inner, self.fixed)])
+            return True, None
+        # The other count was found far away: the family ends at `graze`.
+        return False, graze
+
+    def _accept(self, new):
+        if int(new["num_impacts"]) == int(self.current["num_impacts"]):
+            self._add_special(new)
+        self.points.append(_record(new, self.fixed))
+        self.current = new
+        if int(new["steps"]) <= 3:
+            self.h = min(1.5 * self.h, self.ds_max)
+        self._tick(mu=f"{float(new['Y'][-1]):.5g}", impacts=int(new["num_impacts"]),
+                   ds=f"{self.h:.2g}")
+
+    def _approach(self, tangent, k_now):
+        """An impacting family that the corrector cannot follow: if its impact speed is
+        going to 0, approach grazing along the family parametrised by that speed. Returns
+        a status, None (go on, on the other family) or _FALL_THROUGH (nothing found)."""
+        current = self.current
+        self.approach_tried = len(self.points)
+        reach = 4 * self.h * abs(float(tangent[-1]))
+        found = _approach_grazing(self._natural(), self.points, k_now, self.locate_tol,
+                                  reach=reach)
+        if found is None:
+            return _FALL_THROUGH
+        mu_star, Y_star, new_points = found
+        self.points.extend(_record(pt, self.fixed) for pt in new_points)
+        last = new_points[-1] if new_points else current
+        end = dict(last, Y=jnp.asarray(Y_star))
+        located = _grazing_point(self.scene, end, self.args_of, self.fam, self.t0, self.T_fixed,
+                                 self.fixed, k_now, None, "end", self.kw).point
+        located = dataclasses.replace(located, mu=mu_star)
+        switched = None
+        if self.switch_branches:
+            # Arrival: from the family's last point towards μ* (near a fold the
+            # tangent's μ component can point either way).
+            gap_mu = mu_star - float(np.asarray(last["Y"])[-1])
+            arrival = float(np.sign(gap_mu)) if gap_mu != 0 else (
+                1.0 if float(tangent[-1]) >= 0 else -1.0)
+            switched = _switch(self.fam, end, self.args_of, self.t0, self.T_fixed, self.fixed,
+                               k_now, arrival, self.ds, self.phase_of, self.j, self.ts_unit)
+        if switched is None:
+            self.grazing.append(located)
+            return ContinuationStatus.BRANCH_ENDS
+        self._take_other(located, *switched)
+        self._tick(len(new_points) + 1)
+        return None
+
+    def _family_ends(self, boundary, tangent, k_now):
+        """The family ends at `boundary`: locate the grazing point there and switch to
+        another family if one continues."""
+        current, fixed = self.current, self.fixed
+        located = _grazing_point(self.scene, boundary, self.args_of, self.fam, self.t0,
+                                 self.T_fixed, fixed, k_now, None, "end", self.kw)
         if not located.depth_is_small:
-            status = ContinuationStatus.STEP_TOO_SMALL
-            break
-        family = [pt for pt in points[-4:] if int(pt["num_impacts"]) == k_now]
+            return ContinuationStatus.STEP_TOO_SMALL
+        family = [pt for pt in self.points[-4:] if int(pt["num_impacts"]) == k_now]
         if boundary is not current:
             family.append(boundary)
-        located = _extrapolate_end(scene, located, family, args_of, fam, t0, T_fixed, fixed,
-                                   k_now, kw)
+        located = _extrapolate_end(self.scene, located, family, self.args_of, self.fam,
+                                   self.t0, self.T_fixed, fixed, k_now, self.kw)
         switched = None
-        if switch_branches:
+        if self.switch_branches:
             arrival = 1.0 if float(tangent[-1]) >= 0 else -1.0
-            switched = _switch(fam, boundary, args_of, t0, T_fixed, fixed, k_now, arrival, ds,
-                               phase_of, j, ts_unit)
-        if switched is None and switch_branches and k_now == 0:
-            switched = _impacting_family(fam, located, boundary, args_of, t0, T_fixed, fixed,
-                                         arrival, ds, phase_of, j, ts_unit)
+            switched = _switch(self.fam, boundary, self.args_of, self.t0, self.T_fixed, fixed,
+                               k_now, arrival, self.ds, self.phase_of, self.j, self.ts_unit)
+        if switched is None and self.switch_branches and k_now == 0:
+            switched = _impacting_family(self.fam, located, boundary, self.args_of, self.t0,
+                                         self.T_fixed, fixed, arrival, self.ds, self.phase_of,
+                                         self.j, self.ts_unit)
         if boundary is not current:
-            points.append(_record(boundary, fixed))
+            self.points.append(_record(boundary, fixed))
         if switched is None:
-            grazing.append(located.point)
-            status = ContinuationStatus.BRANCH_ENDS
-            break
-        other, kind = switched
-        grazing.append(dataclasses.replace(located.point, impacts_after=int(other["num_impacts"]),
-                                           kind=kind))
-        points.append(_record(other, fixed))
-        current = other
-        h = float(ds)
-        if bar is not None:
-            bar.update(2)
-    if bar is not None:
-        bar.close()
-    return _branch(points, grazing, status, n, float(t_s), settings, tuple(special))
+            self.grazing.append(located.point)
+            return ContinuationStatus.BRANCH_ENDS
+        self._take_other(located.point, *switched)
+        self._tick(2)
+        return None
+
+
+# `_Tracer._approach` found nothing: go on with the step-size logic.
+_FALL_THROUGH = object()
 
 
 def _x_of(Y, fixed):
