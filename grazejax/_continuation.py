@@ -42,13 +42,13 @@ from ._geometry import gap_rates
 from ._orbit_common import (
     SolverSettings,
     _a5,
-    _atol_for,
+    _bordered_newton,
+    _continuation_settings,
     _linearize,
     _PeriodMap,
     _sampled,
-    _solver_name,
     _state_at,
-    _state_scale,
+    _write_text,
 )
 from ._periodic import Orbit, OrbitStatus, find_periodic_orbit, orbit_contacts
 from ._scene import Scene
@@ -260,11 +260,7 @@ class Branch(eqx.Module):
                            self.x0[i], self.x_min[i], self.x_max[i], np.abs(mult[i]),
                            mult[i].real, mult[i].imag])]
                        + [" ".join(labels[i])])
-        text = out.getvalue()
-        if path is not None:
-            with open(path, "w", newline="") as f:
-                f.write(text)
-        return text
+        return _write_text(out.getvalue(), path)
 
 
 # --------------------------------------------------------------------------------------
@@ -304,14 +300,8 @@ def _criterion(fam: _Family, Y, t0, e_j, c, T_fixed):
 @eqx.filter_jit
 def _corrector(fam: _Family, Y_pred, tangent, t0, e_j, c, T_fixed):
     """Newton on [F(Y); tangent·(Y − Y_pred)] = 0 (the only program compiled for continuation)."""
-
-    def bordered(Y, _):
-        rows, _aux = _criterion(fam, Y, t0, e_j, c, T_fixed)
-        return jnp.concatenate([rows, jnp.dot(tangent, Y - Y_pred)[None]])
-
-    solution = optx.root_find(bordered, fam.root_finder, Y_pred, None, max_steps=fam.max_steps,
-                              throw=False)
-    return solution.value, solution.result == optx.RESULTS.successful, solution.stats["num_steps"]
+    return _bordered_newton(lambda Y: _criterion(fam, Y, t0, e_j, c, T_fixed)[0],
+                            fam.root_finder, fam.max_steps, Y_pred, tangent)
 
 
 def _correct(fam: _Family, Y_pred, tangent, t0, e_j, c, T_fixed, ts_unit):
@@ -320,8 +310,10 @@ def _correct(fam: _Family, Y_pred, tangent, t0, e_j, c, T_fixed, ts_unit):
     ∂F/∂(T, x) and the monodromy come from the period map's linearization; ∂F/∂μ, needed
     only for the next tangent, from central differences of the period map.
     """
-    Y, converged, steps = _corrector(fam, jnp.asarray(Y_pred), jnp.asarray(tangent), t0, e_j, c,
-                                     T_fixed)
+    # `c` as an array: `filter_jit` treats a Python float as static, and the phase value
+    # x_j changes at every step of an autonomous family (a recompilation per point).
+    Y, converged, steps = _corrector(fam, jnp.asarray(Y_pred), jnp.asarray(tangent), t0, e_j,
+                                     jnp.asarray(c, float), T_fixed)
     Y_np = np.asarray(Y)
     n = Y_np.shape[0] - (1 if fam.fixed_period else 2)
     T, x, mu = (np.asarray(v) for v in _unpack(fam, Y, T_fixed))
@@ -482,17 +474,9 @@ def continue_orbit(
     if mu_start == mu_stop:
         raise ValueError("mu_start == mu_stop: nothing to continue")
     fixed = bool(orbit.fixed_period)
-    scale = (orbit.settings.state_scale if orbit.settings is not None
-             else _state_scale(np.asarray(orbit.x0)))
-    atol = _atol_for(orbit, rtol, atol)
-    kw = dict(solver=solver, rtol=float(rtol), atol=float(atol), max_impacts=64,
-              max_solver_steps=50_000)
-    settings = SolverSettings(
-        solver=_solver_name(solver), rtol=float(rtol), atol=float(atol),
-        newton_rtol=float(newton_tol), newton_atol=float(newton_tol) * scale,
-        max_steps=int(max_newton_steps), max_solver_steps=50_000, max_impacts=64,
-        state_scale=scale,
-    )
+    kw, settings, scale = _continuation_settings(orbit, rtol, atol, solver, newton_tol,
+                                                 max_newton_steps)
+    atol = kw["atol"]
     pmap = _PeriodMap(scene=scene, end_impacts=0, **kw)
     fam = _Family(
         pmap=pmap, args_of=args_of, period_of=period_of, fixed_period=fixed,

@@ -40,11 +40,11 @@ from ._continuation import ContinuationStatus, GrazingPoint
 from ._geometry import gap_rates
 from ._orbit_common import (
     SolverSettings,
-    _atol_for,
+    _bordered_newton,
+    _continuation_settings,
     _PeriodMap,
     _sampled,
-    _solver_name,
-    _state_scale,
+    _write_text,
 )
 from ._periodic import Orbit, OrbitStatus, orbit_contacts
 from ._scene import Scene
@@ -103,11 +103,7 @@ class GrazingCurve(eqx.Module):
             values = [self.mu[i], self.nu[i], self.t0[i], self.period[i], *self.x0[i],
                       self.curvature[i], self.min_gap[i]]
             w.writerow([repr(float(v)) for v in values] + [int(self.num_impacts[i])])
-        text = out.getvalue()
-        if path is not None:
-            with open(path, "w", newline="") as f:
-                f.write(text)
-        return text
+        return _write_text(out.getvalue(), path)
 
 
 # --------------------------------------------------------------------------------------
@@ -147,14 +143,8 @@ def _residual(system: _GrazingSystem, Y, t_fixed, T_fixed):
 @eqx.filter_jit
 def _corrector(system: _GrazingSystem, Y_pred, tangent, t_fixed, T_fixed):
     """Newton on [G(Y); tangent·(Y − Y_pred)] = 0."""
-
-    def bordered(Y, _):
-        rows = _residual(system, Y, t_fixed, T_fixed)
-        return jnp.concatenate([rows, jnp.dot(tangent, Y - Y_pred)[None]])
-
-    solution = optx.root_find(bordered, system.root_finder, Y_pred, None,
-                              max_steps=system.max_steps, throw=False)
-    return solution.value, solution.result == optx.RESULTS.successful, solution.stats["num_steps"]
+    return _bordered_newton(lambda Y: _residual(system, Y, t_fixed, T_fixed), system.root_finder,
+                            system.max_steps, Y_pred, tangent)
 
 
 @eqx.filter_jit
@@ -369,17 +359,8 @@ def continue_grazing(
     if mu_start == mu_stop:
         raise ValueError("mu_start == mu_stop: nothing to continue")
     orbit = point.orbit if isinstance(point, GrazingPoint) else point
-    scale = (orbit.settings.state_scale if orbit.settings is not None
-             else _state_scale(np.asarray(orbit.x0)))
-    atol = _atol_for(orbit, rtol, atol)
-    kw = dict(solver=solver, rtol=float(rtol), atol=float(atol), max_impacts=64,
-              max_solver_steps=50_000)
-    settings = SolverSettings(
-        solver=_solver_name(solver), rtol=float(rtol), atol=float(atol),
-        newton_rtol=float(newton_tol), newton_atol=float(newton_tol) * scale,
-        max_steps=int(max_newton_steps), max_solver_steps=50_000, max_impacts=64,
-        state_scale=scale,
-    )
+    kw, settings, scale = _continuation_settings(orbit, rtol, atol, solver, newton_tol,
+                                                 max_newton_steps)
     surface, t_c, x_c, orbit = _contact_of(scene, point, args_of(mu_start, nu_start), surface, kw)
     fixed = bool(orbit.fixed_period)
     n = x_c.shape[0]

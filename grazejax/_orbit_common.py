@@ -171,3 +171,41 @@ def _state_at(pmap: _PeriodMap, x0, t0, t, args):
         return np.asarray(x0, float)
     sol = _run(pmap, jnp.asarray(x0, float), jnp.asarray(t0, float), jnp.asarray(t, float), args)
     return np.asarray(sol.x_final)
+
+
+def _write_text(text: str, path) -> str:
+    """`text`, also written to `path` if given (the `to_csv`/`to_json` exports)."""
+    if path is not None:
+        with open(path, "w", newline="") as f:
+            f.write(text)
+    return text
+
+
+def _continuation_settings(orbit, rtol, atol, solver, newton_tol, max_newton_steps):
+    """The simulate keywords, [`grazejax.SolverSettings`][] and state scale of a
+    continuation from `orbit` (`atol=None`: scaled to the orbit's size)."""
+    scale = (orbit.settings.state_scale if orbit.settings is not None
+             else _state_scale(np.asarray(orbit.x0)))
+    atol = _atol_for(orbit, rtol, atol)
+    kw = dict(solver=solver, rtol=float(rtol), atol=float(atol), max_impacts=64,
+              max_solver_steps=50_000)
+    settings = SolverSettings(
+        solver=_solver_name(solver), rtol=float(rtol), atol=float(atol),
+        newton_rtol=float(newton_tol), newton_atol=float(newton_tol) * scale,
+        max_steps=int(max_newton_steps), max_solver_steps=50_000, max_impacts=64,
+        state_scale=scale,
+    )
+    return kw, settings, scale
+
+
+def _bordered_newton(rows_of, root_finder, max_steps, Y_pred, tangent):
+    """Newton (`optx.root_find`) on [rows(Y); tangent·(Y − Y_pred)] = 0: the
+    pseudo-arclength corrector. Returns (Y, converged, number of steps)."""
+    import optimistix as optx
+
+    def bordered(Y, _):
+        return jnp.concatenate([rows_of(Y), jnp.dot(tangent, Y - Y_pred)[None]])
+
+    solution = optx.root_find(bordered, root_finder, Y_pred, None, max_steps=max_steps,
+                              throw=False)
+    return solution.value, solution.result == optx.RESULTS.successful, solution.stats["num_steps"]
