@@ -39,7 +39,7 @@ class Program(eqx.Module):
 
 def build_program(
     scene: Scene, checked, *, solver, rtol, atol, stepsize_controller, dt0, max_impacts,
-    max_steps, zeno_rtol, zeno="stop", adjoint=None,
+    max_steps, zeno_rtol, zeno="stop", adjoint=None, check_field_jumps=True,
 ) -> Program:
     """The loop functions for `scene`, with inputs checked by `validate_inputs`.
 
@@ -50,6 +50,7 @@ def build_program(
         scene, checked, solver=solver, rtol=rtol, atol=atol,
         stepsize_controller=stepsize_controller, dt0=dt0, max_impacts=max_impacts,
         max_steps=max_steps, zeno_rtol=zeno_rtol, zeno=zeno, adjoint=adjoint,
+        check_field_jumps=check_field_jumps,
     )
     # (functools.partial, not bound methods: `Program`'s static fields hash by identity.)
     return Program(
@@ -60,7 +61,7 @@ def build_program(
 
 def build_context(
     scene: Scene, checked, *, solver, rtol, atol, stepsize_controller, dt0, max_impacts,
-    max_steps, zeno_rtol, zeno, adjoint,
+    max_steps, zeno_rtol, zeno, adjoint, check_field_jumps=True,
 ) -> LoopContext:
     policy = as_zeno_policy(zeno)
     if policy.slides and checked.sigma < 0:
@@ -107,7 +108,7 @@ def build_context(
         tol_r=getattr(controller, "rtol", rtol), tol_a=getattr(controller, "atol", atol),
         solver=solver, controller=controller, has_error=has_error, term=term,
         error_order=solver.error_order(term), kinds=kinds, policy=policy, sticky=sticky,
-        dt0=dt0, max_impacts=max_impacts, max_steps=max_steps, zeno_rtol=zeno_rtol,
+        check_field_jumps=bool(check_field_jumps) and m > 0, dt0=dt0, max_impacts=max_impacts, max_steps=max_steps, zeno_rtol=zeno_rtol,
         zero=jnp.zeros((), dtype), nan=jnp.array(jnp.nan, dtype),
     )
 
