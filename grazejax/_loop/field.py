@@ -9,37 +9,40 @@ block's time to rest off by 5.5e-4, the friction oscillator's turns drifting by 
 half cycle at rtol 1e-10). The remedy is structural (modes: `PiecewiseScene`), so the loop
 refuses such a scene at its first landing with `Status.FIELD_DISCONTINUITY`.
 
-**The rule.** Probe f along the flight's own direction v = f(t, x⁺) with the centred second
-differences at two spacings, t fixed:
+**The rule.** Probe f along the flight's own direction v = f(t, x⁺), t fixed, with the
+one-sided second differences on each side s = ±1, at two spacings:
 
-    D(δ) = f(x⁺ + δv) − 2 f(x⁺) + f(x⁺ − δv).
+    D_s(δ) = f(x⁺ + 2sδv) − 2 f(x⁺ + sδv) + f(x⁺).
 
-For a C² field D(δ) = δ² D²f[v, v] + O(δ⁴): it grows like δ². If f jumps by [f] across a
-surface through x⁺ that v crosses, one of the two probes lies on the other side and
-D(δ) = ±[f] + O(δ²) (whichever side the round-off put x⁺ on: the probe is symmetric, so
-the verdict does not depend on that coin toss). A field that jumps is one whose second
-difference does not grow with δ. A power law D ∝ δ^p has D(2δ)/D(δ) = 2^p; we call it a
-jump when ‖D(2δ) − D(δ)‖ ≤ ¼‖D(δ)‖, i.e. 2^p ≤ 1.25, p ≤ 0.32. A jump has p = 0, a smooth
-field p = 2, a kink of f (a continuous field whose Jacobian jumps, e.g. a one-sided
-spring max(−x, 0)) p = 1 and Hertz-type (−x)^{3/2} p = 1.5: none of those are refused,
-only genuine jumps of f.
+For a C² field D_s(δ) = δ² D²f[v, v] + O(δ³): it grows like δ². If f jumps across a
+surface through x⁺ that v crosses, then on the side s beyond the surface the two probes
+see that side's smooth field f_s and x⁺ does not: D_s(δ) = f(x⁺) − f_s(x⁺) + O(δ²), the
+jump (whole if round-off put x⁺ on the other side, half if `sign(0) = 0` put f(x⁺)
+halfway, where a centred difference would cancel it exactly). Either way one side sees it,
+so the verdict does not depend on the coin toss of the last bits of x⁺. A field that jumps
+is one whose second difference does not grow with δ. A power law D ∝ δ^p has
+D(2δ)/D(δ) = 2^p; we call it a jump when ‖D_s(2δ) − D_s(δ)‖ ≤ ¼‖D_s(δ)‖ on some side,
+i.e. 2^p ≤ 1.25, p ≤ 0.32. A jump has p = 0, a smooth field p = 2; a kink (a continuous
+field whose Jacobian jumps, e.g. a one-sided spring max(−x, 0)) is smooth on each side of
+x⁺, and so is Hertz-type (−x)^{3/2}: neither is refused, only genuine jumps of f.
 
 **The spacing** δ‖v‖∞ = √ε·L, L the largest |x_k| met in the flight (the loop's
 round-off scale): far above the contact floor (64 ulps of L, so the probes do cross the
 surface that x⁺ sits on), far below any length of the dynamics (the probe only sees what
-happens at x⁺).
+happens within 4√ε·L ≈ 6e-8·L of x⁺).
 
 **The round-off floor.** Each evaluation of f carries an error of a few ulps of the terms
 it sums, which are of size ‖f‖ plus the linear terms ‖∂f/∂x‖·L. With G the slope of f
-along v from the outer probes (‖f(x⁺ + 2δv) − f(x⁺ − 2δv)‖∞ / (4δ‖v‖∞), no extra
+along v from the outer probes (‖f(x⁺ + 4δv) − f(x⁺ − 4δv)‖∞ / (8δ‖v‖∞), no extra
 evaluation) the noise in D is a few ε·(F + L·G), F the largest ‖f‖∞ among the probes. A
 jump must exceed τ = 1e3·ε·(F + L·G): a factor ~100 over that noise, so the power-law
-test above only ever sees signal. (A jump inflates G by [f]/(4√ε·L), which raises τ to
-~2.5e-6·‖[f]‖: the jump still exceeds it.) Jumps of f smaller than ~1e-12 of the field's
-scale are not seen; they also cost no more than round-off.
+test above only ever sees signal. (A jump inflates G by [f]/(8√ε·L), which raises τ to
+~1e-6·‖[f]‖: the jump still exceeds it.) Jumps of f below ~1e-12 of the field's scale are
+not seen; they also cost no more than round-off.
 
-The probe costs five evaluations of f per landing (none of them differentiated: its
-inputs are `stop_gradient`-ed, and it only returns a bool), and is skipped where v = 0.
+The probe costs seven evaluations of f per landing (none differentiated: its inputs are
+`stop_gradient`-ed, and it only returns a bool), only in the landing phase, and gives no
+verdict where v = 0 or where a probe is not finite.
 """
 
 import jax
@@ -55,6 +58,15 @@ _NOISE_FACTOR = 1e3
 def field_jumps(vector_field, t, x, args, x_scale):
     """Whether `vector_field(t, ·, args)` jumps at `x` along its own direction (see the
     module docstring). Returns a bool scalar; carries no derivative."""
+    sizes, threshold, growths = field_probe(vector_field, t, x, args, x_scale)
+    # NaN anywhere (a field undefined off the trajectory) compares False: no verdict.
+    return jnp.any((sizes > threshold) & (growths <= _JUMP_GROWTH - 1))
+
+
+def field_probe(vector_field, t, x, args, x_scale):
+    """The probe's numbers: per side s = (+1, −1), `‖D_s(δ)‖∞` and
+    `‖D_s(2δ) − D_s(δ)‖∞ / ‖D_s(δ)‖∞`, and the floor τ: `(sizes, τ, growths)`. A jump is a
+    side with `size > τ` and a growth of at most ¼. Where v = 0 the sizes are 0."""
     t, x, args, x_scale = jax.lax.stop_gradient((t, x, args, x_scale))
     dtype = x.dtype
     eps = jnp.finfo(dtype).eps
@@ -69,13 +81,16 @@ def field_jumps(vector_field, t, x, args, x_scale):
     # v = 0 (at rest) or no scale: nothing to probe; keep δ finite so that the unused
     # evaluations below stay finite.
     delta = jnp.where(moving, jnp.sqrt(eps) * length / jnp.where(moving, speed, 1.0), 0.0)
-    probes = jax.vmap(lambda k: f(x + k * delta * f0))(jnp.array([1.0, -1.0, 2.0, -2.0], dtype))
-    d1 = probes[0] - 2 * f0 + probes[1]
-    d2 = probes[2] - 2 * f0 + probes[3]
-    norm = lambda z: jnp.max(jnp.abs(z))  # noqa: E731
-    slope = norm(probes[2] - probes[3]) / jnp.where(moving, 4 * delta * speed, 1.0)
+    # Points x + kδv, k = ±1, ±2, ±4: a one-sided second difference on each side, at
+    # spacings δ and 2δ (one-sided: sign(0) = 0 puts f(x) halfway, where a centred
+    # difference would cancel the jump exactly).
+    ks = jnp.array([1.0, 2.0, 4.0, -1.0, -2.0, -4.0], dtype)
+    probes = jax.vmap(lambda k: f(x + k * delta * f0))(ks)
+    norm = lambda z: jnp.max(jnp.abs(z), axis=-1)  # noqa: E731
+    d1 = jnp.stack([probes[1] - 2 * probes[0], probes[4] - 2 * probes[3]]) + f0
+    d2 = jnp.stack([probes[2] - 2 * probes[1], probes[5] - 2 * probes[4]]) + f0
+    slope = norm(probes[2] - probes[5]) / jnp.where(moving, 8 * delta * speed, 1.0)
     scale = jnp.maximum(norm(f0), jnp.max(jnp.abs(probes))) + length * slope
-    above_noise = norm(d1) > _NOISE_FACTOR * eps * scale
-    flat = norm(d2 - d1) <= (_JUMP_GROWTH - 1) * norm(d1)
-    # NaN anywhere (a field undefined off the trajectory) compares False: no verdict.
-    return moving & above_noise & flat
+    sizes = jnp.where(moving, norm(d1), 0.0)
+    growths = norm(d2 - d1) / jnp.where(sizes > 0, sizes, 1.0)
+    return sizes, _NOISE_FACTOR * eps * scale, growths

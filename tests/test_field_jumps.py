@@ -1,0 +1,142 @@
+"""The field-jump probe (`_loop/field.py`, `Status.FIELD_DISCONTINUITY`): a field written
+with `sign(·)` on an event surface is refused at its first event; nothing else is.
+
+Three layers: the probe on fields with known regularity (a jump, kinks, smooth fields with
+large curvature), the two `sign(·)` scenes of issue 13 against their mode formulations, and
+a no-false-alarm campaign over every example scene of the package (slow).
+"""
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import grazejax as gj
+from grazejax import examples as ex
+from grazejax._loop.field import field_jumps, field_probe
+
+TOL = 1e-10
+
+
+# --------------------------------------------------------------------------------------
+# The probe on fields of known regularity
+# --------------------------------------------------------------------------------------
+
+
+def _verdict(field, x, scale=1.0):
+    x = jnp.asarray(x, float)
+    return bool(field_jumps(lambda t, y, a: field(y), 0.0, x, None, jnp.full_like(x, scale)))
+
+
+@pytest.mark.parametrize("side", [1e-31, -1e-31, 0.0, 3e-17, -3e-17])
+@pytest.mark.parametrize("size", [1.0, 1e-3, 1e-9])
+def test_a_jump_is_found_whichever_side_the_state_is_on(side, size):
+    # x'' = −x − μ sign(x') at a turn: x' is round-off, f jumps by 2μ in x''.
+    field = lambda y: jnp.stack([y[1], -y[0] - size * jnp.sign(y[1])])  # noqa: E731
+    assert _verdict(field, [0.8, side])
+
+
+@pytest.mark.parametrize(
+    "force",
+    [
+        lambda x: jnp.maximum(-x, 0.0),  # kink: f continuous, ∂f jumps (p = 1)
+        lambda x: jnp.maximum(-x, 0.0) ** 1.5,  # Hertz contact (p = 1.5)
+        lambda x: jnp.abs(x),  # kink on both sides
+        lambda x: jnp.sin(x),
+        lambda x: jnp.exp(50.0 * x),  # smooth, curvature 2500 per unit length²
+        lambda x: 1e6 * x**2,
+    ],
+)
+@pytest.mark.parametrize("x", [1e-31, -1e-31, 0.0, 0.3])
+def test_continuous_fields_are_not_refused(force, x):
+    field = lambda y: jnp.stack([y[1], -9.81 + 1e3 * force(y[0])])  # noqa: E731
+    assert not _verdict(field, [x, -2.0])
+
+
+def test_no_verdict_at_rest_or_where_the_field_is_undefined():
+    assert not _verdict(lambda y: jnp.zeros(2) * y, [0.0, 0.0])
+    assert not _verdict(lambda y: jnp.stack([y[1], jnp.sqrt(y[0]) - jnp.sign(y[0])]), [0.0, -1.0])
+
+
+def test_the_probe_margins():
+    # The decision is far from its thresholds on both sides: a jump exceeds τ by
+    # 8/(1e3·√ε) ≈ 5e5 (the jump itself inflates τ through the slope G, field.py) with
+    # growth ≈ 0; a smooth field's second difference grows ≈ 4× (growth 3).
+    jump = lambda t, y, a: jnp.stack([y[1], -y[0] - 1e-3 * jnp.sign(y[1])])  # noqa: E731
+    sizes, tau, growths = field_probe(jump, 0.0, jnp.array([0.8, 1e-31]), None, jnp.ones(2))
+    assert sizes[0] > 1e5 * tau and growths[0] < 1e-3  # the side beyond x' = 0
+    assert sizes[1] < tau  # the side x⁺ is on: smooth
+    # A smooth field's D ≈ δ²·D²f[v, v] = ε·L²·f'' stays below τ ≈ 1e3·ε·(F + L·G) unless
+    # its curvature is ~1e3 times its slope: sin(1e4 x) is, and there D grows 4× (growth 3).
+    smooth = lambda t, y, a: jnp.stack([y[1], jnp.exp(50.0 * y[0])])  # noqa: E731
+    sizes, tau, growths = field_probe(smooth, 0.0, jnp.array([0.3, -2.0]), None, jnp.ones(2))
+    assert jnp.all(sizes < 0.1 * tau)
+    wavy = lambda t, y, a: jnp.stack([y[1], jnp.sin(1e4 * y[0])])  # noqa: E731
+    sizes, tau, growths = field_probe(wavy, 0.0, jnp.array([0.3, -2.0]), None, jnp.ones(2))
+    assert jnp.all(sizes > tau) and jnp.all(jnp.abs(growths - 3.0) < 0.1)
+
+
+# --------------------------------------------------------------------------------------
+# The sign(·) scenes of issue 13 are refused; their mode formulations are not
+# --------------------------------------------------------------------------------------
+
+ROCK = {"p": 2.0, "alpha": 0.2, "e": 0.9}
+
+
+def sign_rocking_block():
+    """θ'' = p²(θ − α sign θ), two pieces Φ = ±θ with a restitution jump (issue 13)."""
+    field = lambda t, x, a: jnp.stack([x[1], a["p"] ** 2 * (x[0] - a["alpha"] * jnp.sign(x[0]))])  # noqa: E731
+    restitution = lambda t, x, a: x.at[1].set(a["e"] * x[1])  # noqa: E731
+    return gj.Scene(field, [gj.Surface(lambda t, x, a: x[0], restitution),
+                            gj.Surface(lambda t, x, a: -x[0], restitution)])
+
+
+def sign_friction_oscillator():
+    """x'' + x = −μ sign(x'), identity-jump events on x' = 0 from each side (issue 13)."""
+    field = lambda t, x, a: jnp.stack([x[1], -x[0] - a["mu"] * jnp.sign(x[1])])  # noqa: E731
+    same = lambda t, x, a: x  # noqa: E731
+    return gj.Scene(field, [gj.Surface(lambda t, x, a: x[1], same),
+                            gj.Surface(lambda t, x, a: -x[1], same)])
+
+
+def test_sign_rocking_block_is_refused_at_its_first_impact():
+    first = ex.rocking_block_impact_times(0.1, ROCK["p"], ROCK["alpha"], ROCK["e"], 1)[0]
+    run = jax.jit(lambda x0: gj.simulate(sign_rocking_block(), x0, 0.0, 10.0, ROCK, rtol=TOL,
+                                         atol=TOL, direction=1))
+    sol = run(jnp.array([0.1, 0.0]))
+    assert gj.Status(int(sol.status)) == gj.Status.FIELD_DISCONTINUITY
+    assert int(sol.num_impacts) == 1
+    assert abs(float(sol.t_final) - first) < 50 * TOL
+    # Outside jit: a ValueError that names the fix.
+    with pytest.raises(ValueError, match="PiecewiseScene"):
+        gj.simulate(sign_rocking_block(), jnp.array([0.1, 0.0]), 0.0, 10.0, ROCK, rtol=TOL,
+                    atol=TOL)
+    # The mode formulation runs through its impacts, on the closed form.
+    pw = ex.rocking_block()
+    sol = gj.simulate(pw.scene, pw.state([0.1, 0.0], "right"), 0.0, 10.0, ROCK, rtol=TOL,
+                      atol=TOL, max_impacts=8)
+    assert gj.Status(int(sol.status)) == gj.Status.MAX_IMPACTS
+    times = ex.rocking_block_impact_times(0.1, ROCK["p"], ROCK["alpha"], ROCK["e"], 8)
+    np.testing.assert_allclose(np.asarray(sol.impact_times), times, rtol=0, atol=50 * TOL * 11)
+
+
+def test_sign_friction_oscillator_is_refused_per_lane_at_its_first_turn():
+    # Lane 0 (μ = 0) has a smooth field with the same events: it must run to t1.
+    run = jax.jit(jax.vmap(lambda mu: gj.simulate(sign_friction_oscillator(), jnp.array([1.0, 0.0]),
+                                                  0.0, 20.0, {"mu": mu}, rtol=TOL, atol=TOL,
+                                                  direction=1)))
+    sol = run(jnp.array([0.0, 0.1]))
+    status = [gj.Status(int(s)) for s in sol.status]
+    assert status == [gj.Status.SUCCESS, gj.Status.FIELD_DISCONTINUITY]
+    assert int(sol.num_impacts[1]) == 1 and int(sol.num_impacts[0]) == 6
+    assert abs(float(sol.t_final[1]) - math.pi) < 1e-6  # (the first flight starts on Σ)
+    message = str(gj.SimulationError(sol))
+    assert "FIELD_DISCONTINUITY" in message and "PiecewiseScene" in message
+    # The check compiled out: the run goes on (inaccurately, issue 13), never refused.
+    quiet = gj.simulate(sign_friction_oscillator(), jnp.array([1.0, 0.0]), 0.0, 20.0,
+                        {"mu": 0.1}, rtol=TOL, atol=TOL, check_field_jumps=False)
+    assert gj.Status(int(quiet.status)) != gj.Status.FIELD_DISCONTINUITY
+    assert int(quiet.num_impacts) > 1
+
