@@ -140,3 +140,115 @@ def test_sign_friction_oscillator_is_refused_per_lane_at_its_first_turn():
     assert gj.Status(int(quiet.status)) != gj.Status.FIELD_DISCONTINUITY
     assert int(quiet.num_impacts) > 1
 
+
+
+# --------------------------------------------------------------------------------------
+# No false alarms: every example scene of the package, forward and backward, Zeno and
+# sticking, near-grazing starts (slow: one compilation per case)
+# --------------------------------------------------------------------------------------
+
+
+def _grid(center, spread, num, seed):
+    rng = np.random.default_rng(seed)
+    return jnp.asarray(np.asarray(center) + spread * rng.uniform(-1, 1, (num, len(center))))
+
+
+def _rings(center, radii, angle):
+    """States on circles about `center` (radius r, at `angle`): near-grazing starts."""
+    radii = np.asarray(radii)
+    return jnp.asarray(np.stack([center[0] + radii * np.cos(angle),
+                                 center[1] + radii * np.sin(angle)], axis=1))
+
+
+# Offsets from the grazing radius: inside, within and beyond the contact floor.
+_NEAR = np.array([-1e-6, -1e-9, -1e-12, 0.0, 1e-12, 1e-9, 1e-6])
+
+
+def campaign_cases():
+    """`(name, scene, x0s, t0, t1, args, options)`: one batch of lanes per case."""
+    ball, ball_args = ex.bouncing_ball(), {"g": 9.81, "e": 0.8}
+    table = ex.vibrating_table()
+    table_args = {"g": 9.81, "e": 0.5, "A": 0.05, "omega": 10.0}
+    osc, osc_args = ex.impact_oscillator(), ex.impact_oscillator_args()
+    fourier = ex.fourier_impact_oscillator()
+    fourier_args = ex.fourier_impact_oscillator_args([0.0, 1.0, 0.3], [0.0, 0.2, 0.0])
+    long = {"max_impacts": 60, "rtol": TOL, "atol": TOL}
+    cases = [
+        ("ball Zeno", ball, _grid([1.0, 0.0], 0.5, 6, 0), 0.0, 10.0, ball_args, {"max_impacts": 200}),
+        ("ball stick", ball, _grid([1.0, 0.0], 0.5, 6, 1), 0.0, 10.0, ball_args,
+         {"max_impacts": 200, "zeno": "stick"}),
+        ("ball backward", ball, _grid([0.3, 1.0], 0.2, 6, 2), 3.0, 0.0, ball_args, {"max_impacts": 20}),
+        ("table stick", table, _grid([0.3, 0.0], 0.1, 6, 3), 0.0, 3.0, table_args,
+         {"max_impacts": 200, "zeno": "stick"}),
+        ("table", table, _grid([0.3, 0.0], 0.1, 6, 4), 0.0, 3.0, table_args, {"max_impacts": 200}),
+        ("oscillator", osc, _grid([0.0, 0.0], 0.3, 6, 5), 0.0, 40.0, osc_args, long),
+        ("oscillator backward", osc, _grid([0.0, 0.5], 0.1, 6, 6), 20.0, 0.0, osc_args,
+         {"max_impacts": 30}),
+        ("fourier oscillator", fourier, _grid([0.0, 0.0], 0.3, 6, 7), 0.0, 40.0, fourier_args, long),
+    ]
+    for name, (make, make_args) in ex.PAPER_SCENES.items():
+        cases.append((name, make(), _grid([0.5, 1.0], 0.4, 6, 8), 0.0, 30.0, make_args(), long))
+        # Backward from where the forward flow is at t = 8: through the same impacts.
+        cases.append((name + " backward", make(), ("forward from", _grid([0.5, 1.0], 0.4, 6, 8)),
+                      8.0, 0.0, make_args(), {"max_impacts": 20, "rtol": TOL, "atol": TOL}))
+    cases += [
+        # ex1dof's unperturbed flow circles (1, 0): radius 1 grazes x1 = 0.
+        ("ex1dof near grazing", ex.ex1dof(), _rings([1.0, 0.0], 1.0 + _NEAR, 0.0), 0.0, 30.0,
+         ex.ex1dof_args(0.0), long),
+        # exnonaxial's flow is a rotation: radius 1 grazes x1 + x2 = √2 at angle π/4.
+        ("exnonaxial near grazing", ex.exnonaxial(), _rings([0.0, 0.0], 1.0 + _NEAR, 0.0), 0.0,
+         30.0, ex.exnonaxial_args(), long),
+        ("orbex2 near grazing", ex.orbex2(), _rings([0.0, 0.0], 1e-3 * (1.0 + _NEAR), 0.0), 0.0,
+         30.0, ex.orbex2_args(), long),
+    ]
+    rock, fo, belt, relay = (ex.rocking_block(), ex.friction_oscillator(),
+                             ex.belt_stick_slip(), ex.relay_feedback())
+    with_mode = lambda pw, xs, mode: jnp.stack([pw.state(x, mode) for x in np.asarray(xs)])  # noqa: E731
+    cases += [
+        ("rocking block", rock.scene, with_mode(rock, _grid([0.1, 0.0], 0.05, 6, 10), "right"),
+         0.0, 10.0, ROCK, long),
+        ("friction oscillator", fo.scene, with_mode(fo, _grid([1.0, 0.0], 0.0, 1, 11), "backward"),
+         0.0, 20.0, {"mu": 0.1}, long),
+        ("friction oscillator moving", fo.scene,
+         with_mode(fo, np.stack([np.linspace(-1, 1, 5), np.full(5, 0.5)], 1), "forward"),
+         0.0, 20.0, {"mu": 0.1}, long),
+        ("belt stick-slip", belt.scene, with_mode(belt, _grid([-0.5, 0.0], 0.1, 6, 12), "slow"),
+         0.0, 30.0, {"v_b": 0.5, "mu_s": 0.3, "mu_d": 0.2}, long),
+        ("relay feedback", relay.scene,
+         with_mode(relay, np.stack([np.linspace(-1, 1, 5), np.full(5, 0.5)], 1), "plus"),
+         0.0, 30.0, ex.relay_feedback_args(), long),
+    ]
+    return cases
+
+
+def run_campaign():
+    """Run every case as one `jit(vmap(simulate))`; returns `(name, statuses)` per case."""
+    results = []
+    for name, scene, x0s, t0, t1, args, options in campaign_cases():
+        direction = 1 if t1 > t0 else -1
+        if isinstance(x0s, tuple):  # start where the forward flow is at t0
+            forward = jax.vmap(lambda x0, scene=scene, t0=t0, args=args: gj.simulate(
+                scene, x0, 0.0, t0, args, direction=1, rtol=TOL, atol=TOL).x_final)
+            x0s = jax.jit(forward)(x0s[1])
+        run = jax.jit(jax.vmap(lambda x0, scene=scene, t0=t0, t1=t1, args=args, options=options:
+                               gj.simulate(scene, x0, t0, t1, args, direction=direction,
+                                           **options)))
+        sol = run(x0s)
+        results.append((name, [gj.Status(int(s)) for s in sol.status],
+                        np.asarray(sol.num_impacts)))
+    return results
+
+
+@pytest.mark.slow
+def test_no_false_alarms_on_the_example_scenes():
+    results = run_campaign()
+    alarms = [(name, i) for name, status, _ in results for i, s in enumerate(status)
+              if s == gj.Status.FIELD_DISCONTINUITY]
+    lanes = sum(len(status) for _, status, _ in results)
+    events = sum(int(np.sum(n)) for _, _, n in results)
+    print(f"\nfield-jump campaign: {len(results)} cases, {lanes} runs, {events} events, "
+          f"{len(alarms)} alarms")
+    for name, status, n in results:
+        print(f"  {name:28} {[s.name for s in status]}  events {n.tolist()}")
+    assert lanes >= 100 and events >= 1000  # the campaign exercises the check
+    assert alarms == []
