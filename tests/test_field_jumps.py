@@ -230,7 +230,8 @@ def run_campaign():
             forward = jax.vmap(lambda x0, scene=scene, t0=t0, args=args: gj.simulate(
                 scene, x0, 0.0, t0, args, direction=1, rtol=TOL, atol=TOL).x_final)
             x0s = jax.jit(forward)(x0s[1])
-        run = jax.jit(jax.vmap(lambda x0, scene=scene, t0=t0, t1=t1, args=args, options=options:
+        run = jax.jit(jax.vmap(lambda x0, scene=scene, t0=t0, t1=t1, args=args, options=options,
+                               direction=direction:
                                gj.simulate(scene, x0, t0, t1, args, direction=direction,
                                            **options)))
         sol = run(x0s)
