@@ -127,7 +127,7 @@ def simulate(
       `Status.FIELD_DISCONTINUITY` if it jumps there (a field written with `sign(·)` on the
       event surface, whose side after the event is decided by round-off; outside
       `jit`/`vmap` a `ValueError` that names the fix: modes, [`grazejax.PiecewiseScene`][]).
-      Five evaluations of f per event, none differentiated; `False` compiles it out.
+      Seven evaluations of f per event, none differentiated; `False` compiles it out.
     - `throw`: raise if the run does not end with `SUCCESS`, `MAX_IMPACTS` or `ZENO`.
       Outside `jit`: a [`grazejax.SimulationError`][] that names the status and the fix,
       with the Solution as `error.solution`. Inside `jit`/`vmap`: a runtime error
