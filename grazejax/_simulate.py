@@ -255,10 +255,11 @@ def _raise_if_bad_input(sol: Solution):
         return
     if int(status) == Status.FIELD_DISCONTINUITY:
         k = int(sol.num_impacts) - 1
-        where = f"surface {int(sol.impact_surface[k])}, " if k >= 0 else ""
+        at = (f"at the event at t = {float(sol.t_final):.15g} (surface "
+              f"{int(sol.impact_surface[k])}, post-event state {sol.x_final})" if k >= 0 else
+              f"at x0 = {sol.x_final}, which lies on a surface")
         raise ValueError(
-            f"the vector field jumps at the event at t = {float(sol.t_final):.15g} "
-            f"({where}post-event state {sol.x_final}): it "
+            f"the vector field jumps {at}: it "
             "switches on the event surface itself (sign(·) or jnp.where on the state), so "
             "the side whose field the next flight uses is decided by round-off, and the run "
             f"would lose accuracy silently. Fix: {FIELD_FIX}."

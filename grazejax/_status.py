@@ -34,9 +34,9 @@ class Status(enum.IntEnum):
     `simulate` raises a `ValueError` instead."""
     FIELD_DISCONTINUITY = 8
     """The vector field jumps at the state a flight restarts from (after an impact or a
-    crossing): it switches on the event surface itself, written with `sign(·)` or
+    crossing, or x0 on a surface): it switches on the event surface itself, written with `sign(·)` or
     `jnp.where` on the state, so the side whose field the next flight uses is decided by
-    round-off. Stopped at that event (logged). Fix: one mode per side
+    round-off. Stopped at that event (logged), or at t0. Fix: one mode per side
     ([`grazejax.PiecewiseScene`][], docs/piecewise.md), or the side as a state component
     that the jump flips. Outside `jit`/`vmap`, `simulate` raises a `ValueError` instead;
     `simulate(..., check_field_jumps=False)` turns the check off."""

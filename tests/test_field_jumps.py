@@ -123,15 +123,22 @@ def test_sign_rocking_block_is_refused_at_its_first_impact():
 
 
 def test_sign_friction_oscillator_is_refused_per_lane_at_its_first_turn():
-    # Lane 0 (μ = 0) has a smooth field with the same events: it must run to t1.
-    run = jax.jit(jax.vmap(lambda mu: gj.simulate(sign_friction_oscillator(), jnp.array([1.0, 0.0]),
-                                                  0.0, 20.0, {"mu": mu}, rtol=TOL, atol=TOL,
-                                                  direction=1)))
-    sol = run(jnp.array([0.0, 0.1]))
+    # Lanes 0, 1 (μ = 0) have a smooth field with the same events: they run to t1. From
+    # (1, 0) the start is on x' = 0: refused at t0, before any flight used sign(0) = 0;
+    # from (1, 0.3) at the first turn, at t = atan(0.3/1.1) (a circle about (−μ, 0)).
+    run = jax.jit(jax.vmap(lambda x0, mu: gj.simulate(sign_friction_oscillator(), x0, 0.0, 20.0,
+                                                      {"mu": mu}, rtol=TOL, atol=TOL,
+                                                      direction=1)))
+    x0s = jnp.array([[1.0, 0.0], [1.0, 0.3], [1.0, 0.0], [1.0, 0.3]])
+    sol = run(x0s, jnp.array([0.0, 0.0, 0.1, 0.1]))
     status = [gj.Status(int(s)) for s in sol.status]
-    assert status == [gj.Status.SUCCESS, gj.Status.FIELD_DISCONTINUITY]
-    assert int(sol.num_impacts[1]) == 1 and int(sol.num_impacts[0]) == 6
-    assert abs(float(sol.t_final[1]) - math.pi) < 1e-6  # (the first flight starts on Σ)
+    assert status == [gj.Status.SUCCESS] * 2 + [gj.Status.FIELD_DISCONTINUITY] * 2
+    assert np.asarray(sol.num_impacts).tolist() == [6, 7, 0, 1]
+    assert float(sol.t_final[2]) == 0.0
+    first_turn = math.atan2(0.3, 1.0 + 0.1)
+    assert abs(float(sol.t_final[3]) - first_turn) < 50 * TOL * (1 + first_turn)
+    with pytest.raises(ValueError, match="x0 = .* lies on a surface.*PiecewiseScene"):
+        gj.simulate(sign_friction_oscillator(), jnp.array([1.0, 0.0]), 0.0, 20.0, {"mu": 0.1})
     message = str(gj.SimulationError(sol))
     assert "FIELD_DISCONTINUITY" in message and "PiecewiseScene" in message
     # The check compiled out: the run goes on (inaccurately, issue 13), never refused.

@@ -17,6 +17,7 @@ from .._status import ImpactKind, Status
 from .._stepping import loop_controller
 from .context import LoopContext, loop_field
 from .detect import Detection, detect
+from .field import field_jumps
 from .land import land_if_due
 from .policies import as_zeno_policy, stick_at_start
 from .state import LoopState
@@ -146,6 +147,13 @@ def init(ctx: LoopContext, x0, args) -> LoopState:
     status0 = jnp.where(
         ctx.starts_inside(t0, x0, args, x0_scale), int(Status.BAD_START), int(Status.SUCCESS)
     )
+    if ctx.check_field_jumps:
+        # A start on a surface is a restart like any other: the first flight's first stage
+        # must not depend on which side of a jump of f round-off put x0 (`field.py`).
+        jumps0 = jnp.any(restart0) & field_jumps(ctx.vector_field, t0, x0, args, x0_scale)
+        status0 = jnp.where(
+            (status0 == int(Status.SUCCESS)) & jumps0, int(Status.FIELD_DISCONTINUITY), status0
+        )
     zeno_time0 = ctx.nan
     stick0 = jnp.zeros((m,), bool)
     log = (
