@@ -42,7 +42,7 @@ from ._loop.policies import AbstractZenoPolicy
 from ._loop.program import Program, build_program
 from ._loop.state import packing
 from ._scene import Scene
-from ._solution import ACCEPTED, SimulationError, Solution, failure_message
+from ._solution import ACCEPTED, FIELD_FIX, SimulationError, Solution, failure_message
 from ._status import Status
 from ._validate import validate_inputs
 
@@ -72,6 +72,7 @@ def simulate(
     allow_float32: bool = False,
     throw: bool = False,
     adjoint=None,
+    check_field_jumps: bool = True,
 ) -> Solution:
     r"""Simulate x' = f(t, x) with jumps x → J_i(x) on the surface pieces Γ_i, from t0 to t1.
 
@@ -121,6 +122,12 @@ def simulate(
       (recomputes steps between checkpoints); `diffrax.DirectAdjoint()`: both modes, at the
       memory cost of every step. Event-time tangents are the same in every mode (the
       implicit function theorem at the landing step).
+    - `check_field_jumps`: at every event (impact, crossing, release), probe the vector
+      field at the state the next flight starts from, and stop with
+      `Status.FIELD_DISCONTINUITY` if it jumps there (a field written with `sign(·)` on the
+      event surface, whose side after the event is decided by round-off; outside
+      `jit`/`vmap` a `ValueError` that names the fix: modes, [`grazejax.PiecewiseScene`][]).
+      Seven evaluations of f per event, none differentiated; `False` compiles it out.
     - `throw`: raise if the run does not end with `SUCCESS`, `MAX_IMPACTS` or `ZENO`.
       Outside `jit`: a [`grazejax.SimulationError`][] that names the status and the fix,
       with the Solution as `error.solution`. Inside `jit`/`vmap`: a runtime error
@@ -173,6 +180,7 @@ def simulate(
         allow_float32=allow_float32, solver=solver, rtol=rtol, atol=atol,
         stepsize_controller=stepsize_controller, dt0=dt0, max_impacts=max_impacts,
         max_steps=max_steps, zeno_rtol=zeno_rtol, zeno=zeno, adjoint=adjoint,
+        check_field_jumps=check_field_jumps,
     )
 
     def cond(c):
@@ -184,7 +192,7 @@ def simulate(
 
     final = run_loop(cond, program, program.init(checked.x0, args), adjoint, max_steps)
     sol = program.finish(final)
-    _raise_if_bad_start(sol)
+    _raise_if_bad_input(sol)
     if throw:
         sol = _throw_if_failed(sol)
     return sol
@@ -239,11 +247,23 @@ def prepare(scene, x0, t0, t1, args, *, saveat, direction, allow_float32, max_im
     return checked, program
 
 
-def _raise_if_bad_start(sol: Solution):
-    """Outside jit and vmap a start inside an impenetrable surface is an input error."""
+def _raise_if_bad_input(sol: Solution):
+    """Outside jit and vmap a start inside an impenetrable surface, and a field that jumps
+    at an event surface, are input errors: raise a `ValueError` that names the fix."""
     status = sol.status
     if isinstance(status, jax.core.Tracer) or jnp.ndim(status) != 0:
         return
+    if int(status) == Status.FIELD_DISCONTINUITY:
+        k = int(sol.num_impacts) - 1
+        at = (f"at the event at t = {float(sol.t_final):.15g} (surface "
+              f"{int(sol.impact_surface[k])}, post-event state {sol.x_final})" if k >= 0 else
+              f"at x0 = {sol.x_final}, which lies on a surface")
+        raise ValueError(
+            f"the vector field jumps {at}: it "
+            "switches on the event surface itself (sign(·) or jnp.where on the state), so "
+            "the side whose field the next flight uses is decided by round-off, and the run "
+            f"would lose accuracy silently. Fix: {FIELD_FIX}."
+        )
     if int(status) == Status.BAD_START:
         raise ValueError(
             f"x0 = {sol.x_final} lies inside an impenetrable surface (Φ < 0 beyond round-off, "

@@ -110,6 +110,14 @@ def _batch_summary(sol: Solution, max_lanes: int) -> str:
     return "\n".join(lines)
 
 
+# The fix for a field written with sign(·) on an event surface (also raised eagerly).
+FIELD_FIX = (
+    "write the field with one mode per side: grazejax.PiecewiseScene(modes, transitions=... or "
+    "switching=[grazejax.SwitchingSurface(phi, minus=..., plus=..., sliding=...)]) "
+    "(docs/piecewise.md), or keep the side as a state component that the jump flips; "
+    "simulate(..., check_field_jumps=False) silences this check"
+)
+
 # What to do about each way a run can fail (named by `throw=True` errors).
 _FIXES = {
     Status.MAX_STEPS: "raise max_steps, or loosen rtol/atol",
@@ -120,6 +128,7 @@ _FIXES = {
     Status.BAD_JUMP: "the jump law leaves the state inside its impenetrable surface: check the "
     "jump, or mark the surface impenetrable=False if Φ < 0 is allowed",
     Status.BAD_START: "start on the free side Φ >= 0 of every impenetrable surface",
+    Status.FIELD_DISCONTINUITY: FIELD_FIX,
 }
 
 # Statuses that `throw=True` accepts: the run ended the way it was asked to, or at a

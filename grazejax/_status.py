@@ -32,6 +32,14 @@ class Status(enum.IntEnum):
     """`x0` lies strictly inside an `impenetrable` surface piece (Φ < 0 beyond round-off,
     inside its `where`): no trajectory of the scene starts there. Outside `jit`/`vmap`,
     `simulate` raises a `ValueError` instead."""
+    FIELD_DISCONTINUITY = 8
+    """The vector field jumps at the state a flight restarts from (after an impact or a
+    crossing, or x0 on a surface): it switches on the event surface itself, written with `sign(·)` or
+    `jnp.where` on the state, so the side whose field the next flight uses is decided by
+    round-off. Stopped at that event (logged), or at t0. Fix: one mode per side
+    ([`grazejax.PiecewiseScene`][], docs/piecewise.md), or the side as a state component
+    that the jump flips. Outside `jit`/`vmap`, `simulate` raises a `ValueError` instead;
+    `simulate(..., check_field_jumps=False)` turns the check off."""
 
     @property
     def message(self) -> str:
@@ -47,6 +55,8 @@ _MESSAGES = {
     Status.STEP_SIZE_UNDERFLOW: "step size fell below the resolution of t",
     Status.BAD_JUMP: "a jump on an impenetrable surface left the state inside it or moving in",
     Status.BAD_START: "x0 lies inside an impenetrable surface (Φ < 0 beyond round-off)",
+    Status.FIELD_DISCONTINUITY: "the vector field jumps at an event surface (sign(·) on the "
+    "state): the side after the event is round-off",
 }
 
 

@@ -46,6 +46,9 @@ class LoopContext(eqx.Module):
     policy: AbstractZenoPolicy
     # Sliding is compiled in only when asked for (ZenoStick) and there is a surface.
     sticky: bool
+    # Probe the field for a jump at every restart state (`field.py`; simulate's
+    # `check_field_jumps`).
+    check_field_jumps: bool
     dt0: Any
     max_impacts: int
     max_steps: int

@@ -11,6 +11,7 @@ from .._geometry import FLOOR_ULPS, is_tangential
 from .._roots import safe_divide
 from .._status import Status
 from .context import LoopContext
+from .field import field_jumps
 from .policies import keep_sliding, start_or_end_sliding, zeno_test
 from .state import LoopState, dd_add, with_buffers, without_buffers, write_log
 from .step import Step
@@ -102,9 +103,14 @@ def _land(ctx: LoopContext, c: LoopState, y_star, sa, s_star):
         zeno = zeno | stuck
         stick = c.stick
 
+    # The field the next flight starts in must not jump at its first state (the sign(·)
+    # trap, `field.py`): compiled only if asked for (the default).
+    field_jump = jnp.array(False)
+    if ctx.check_field_jumps:
+        field_jump = field_jumps(ctx.vector_field, t_event, x_post, args_, x_scale)
     small = _after_landing(
         ctx, c, lands, s_event, t_event, t_event_hi, t_event_lo, y_event, x_post, bad_side,
-        zeno, num_impacts, restart, intervals, zeno_time, stick,
+        field_jump, zeno, num_impacts, restart, intervals, zeno_time, stick,
     )
     # Left-continuity with respect to the *logged* impact time: save up to s_event plus
     # the rounding of t_event, so `saveat=[t_impact]` returns the pre-impact state.
@@ -210,16 +216,17 @@ def _apply_jumps(ctx: LoopContext, c: LoopState, lands, s_event, t_event, y_even
 
 
 def _after_landing(ctx: LoopContext, c: LoopState, lands, s_event, t_event, t_event_hi,
-                   t_event_lo, y_event, x_post, bad_side, zeno, num_impacts, restart,
-                   intervals, zeno_time, stick) -> LoopState:
+                   t_event_lo, y_event, x_post, bad_side, field_jump, zeno, num_impacts,
+                   restart, intervals, zeno_time, stick) -> LoopState:
     """The state to restart from: the event as the new origin of the local clock, the
     post-impact state, and the run's status (lanes that do not land keep theirs)."""
     finite = jnp.all(jnp.isfinite(x_post))
     status = jnp.where(
         ~finite, int(Status.NONFINITE),
         jnp.where(bad_side, int(Status.BAD_JUMP),
+        jnp.where(field_jump, int(Status.FIELD_DISCONTINUITY),
         jnp.where(zeno, int(Status.ZENO),
-        jnp.where(num_impacts >= ctx.max_impacts, int(Status.MAX_IMPACTS), int(Status.SUCCESS)))),
+        jnp.where(num_impacts >= ctx.max_impacts, int(Status.MAX_IMPACTS), int(Status.SUCCESS))))),
     )
     stop = status != int(Status.SUCCESS)
     keep_old = lambda new, old: jnp.where(lands, new, old)  # noqa: E731

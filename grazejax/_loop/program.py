@@ -17,6 +17,7 @@ from .._status import ImpactKind, Status
 from .._stepping import loop_controller
 from .context import LoopContext, loop_field
 from .detect import Detection, detect
+from .field import field_jumps
 from .land import land_if_due
 from .policies import as_zeno_policy, stick_at_start
 from .state import LoopState
@@ -39,7 +40,7 @@ class Program(eqx.Module):
 
 def build_program(
     scene: Scene, checked, *, solver, rtol, atol, stepsize_controller, dt0, max_impacts,
-    max_steps, zeno_rtol, zeno="stop", adjoint=None,
+    max_steps, zeno_rtol, zeno="stop", adjoint=None, check_field_jumps=True,
 ) -> Program:
     """The loop functions for `scene`, with inputs checked by `validate_inputs`.
 
@@ -50,6 +51,7 @@ def build_program(
         scene, checked, solver=solver, rtol=rtol, atol=atol,
         stepsize_controller=stepsize_controller, dt0=dt0, max_impacts=max_impacts,
         max_steps=max_steps, zeno_rtol=zeno_rtol, zeno=zeno, adjoint=adjoint,
+        check_field_jumps=check_field_jumps,
     )
     # (functools.partial, not bound methods: `Program`'s static fields hash by identity.)
     return Program(
@@ -60,7 +62,7 @@ def build_program(
 
 def build_context(
     scene: Scene, checked, *, solver, rtol, atol, stepsize_controller, dt0, max_impacts,
-    max_steps, zeno_rtol, zeno, adjoint,
+    max_steps, zeno_rtol, zeno, adjoint, check_field_jumps=True,
 ) -> LoopContext:
     policy = as_zeno_policy(zeno)
     if policy.slides and checked.sigma < 0:
@@ -107,7 +109,7 @@ def build_context(
         tol_r=getattr(controller, "rtol", rtol), tol_a=getattr(controller, "atol", atol),
         solver=solver, controller=controller, has_error=has_error, term=term,
         error_order=solver.error_order(term), kinds=kinds, policy=policy, sticky=sticky,
-        dt0=dt0, max_impacts=max_impacts, max_steps=max_steps, zeno_rtol=zeno_rtol,
+        check_field_jumps=bool(check_field_jumps) and m > 0, dt0=dt0, max_impacts=max_impacts, max_steps=max_steps, zeno_rtol=zeno_rtol,
         zero=jnp.zeros((), dtype), nan=jnp.array(jnp.nan, dtype),
     )
 
@@ -145,6 +147,13 @@ def init(ctx: LoopContext, x0, args) -> LoopState:
     status0 = jnp.where(
         ctx.starts_inside(t0, x0, args, x0_scale), int(Status.BAD_START), int(Status.SUCCESS)
     )
+    if ctx.check_field_jumps:
+        # A start on a surface is a restart like any other: the first flight's first stage
+        # must not depend on which side of a jump of f round-off put x0 (`field.py`).
+        jumps0 = jnp.any(restart0) & field_jumps(ctx.vector_field, t0, x0, args, x0_scale)
+        status0 = jnp.where(
+            (status0 == int(Status.SUCCESS)) & jumps0, int(Status.FIELD_DISCONTINUITY), status0
+        )
     zeno_time0 = ctx.nan
     stick0 = jnp.zeros((m,), bool)
     log = (
