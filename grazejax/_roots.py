@@ -6,22 +6,25 @@ diffrax locates events with an unbracketed Newton iteration started at the step'
 look for is already bracketed by a sign change inside one step, so we keep the bracket and
 take fast steps inside it.
 
-The default, `"newton"`, is a safeguarded Newton iteration (Numerical Recipes' `rtsafe`
-with a bracket-closing step, as in Brent's method): the derivative comes with the value
-from one `jax.jvp` of the interpolated gap, which is a polynomial, so it is exact and cheap.
-A Newton point outside the bracket, or one that does not at least halve the previous step,
-is replaced by the bracket's midpoint; once a Newton step is shorter than the stopping
-width, the next point is put that far past the iterate, so that the sign change is
-bracketed to the same few ulps as before. Under `vmap` every lane runs as many iterations
-as the slowest lane needs, so the count per call is what a sweep pays (grazejax issue 14:
-ITP's 31–47 iterations a call were 83% of a random-phase sweep).
+The default, `"newton"`, is a safeguarded Newton iteration (Numerical Recipes' `rtsafe`,
+plus a bracket-closing phase): the derivative comes with the value from one `jax.jvp` of
+the interpolated gap, a polynomial, so it is exact and cheap. The first point is regula
+falsi; a Newton point outside the bracket, or one that does not halve the step before the
+last, is replaced by the bracket's midpoint; once the Newton step is down to the gap's
+rounding, points at least one ulp inwards close the bracket onto adjacent floats. Under
+`vmap` every lane runs as many iterations as the slowest lane needs, so the count per call
+is what a sweep pays (grazejax issue 14: ITP's 31–47 iterations a call were 83% of a
+random-phase sweep). Measured in single runs at rtol 1e-10 (`benchmarks/bench_roots.py`),
+mean / max iterations per call, ITP → Newton: transversal 7.8 / 9 → 4.2 / 5, near grazing
+(ex1dof μ = 0.2) 12.3 / 19 → 5.2 / 6, Zeno sequence 11.3 / 25 → 7.5 / 10. Near a double
+root Newton converges linearly (halving), like bisection: g = (s − 1)² − 1e-12 takes 26
+iterations (ITP 32).
 
 The previous method, `"itp"` (Oliveira & Takahashi, ACM TOMS 47(1), 2020: regula falsi,
-truncated towards the midpoint and projected into a shrinking ball around it), is kept for
-comparison (`benchmarks/bench_roots.py`): it never needs more than one iteration more than
+truncated towards the midpoint and projected into a shrinking ball around it), is kept
+for comparison (`search_method`): it never needs more than one iteration more than
 bisection, but its projection undoes one-sided convergence, so on interpolated gaps it
-mostly bisects. Measured iterations per call (`count=True`): see `tests/test_roots.py` and
-the benchmark.
+mostly bisects.
 """
 
 import contextlib
@@ -29,7 +32,6 @@ import contextlib
 import jax
 import jax.lax as lax
 import jax.numpy as jnp
-
 
 _METHODS = ("newton", "itp")
 _default_method = "newton"
@@ -56,9 +58,9 @@ def bracketed_root(
     """Locate the sign change of `fn` in `[lo, hi]`, given `f_lo > 0 >= f_hi`.
 
     Returns `(lo, hi)` with `fn(lo) > 0 >= fn(hi)` and `hi - lo` at most `rel_width` times
-    the initial bracket, or a few ulps (the default). `hi` is the first point at or past
-    the sign change. The result carries no derivative: callers apply one Newton step
-    outside (the implicit function theorem) when they need tangents. `count=True` also
+    the initial bracket, or a few ulps (the default; adjacent floats with `"newton"`).
+    `hi` is the first point at or past the sign change. The result carries no
+    derivative: callers apply one Newton step outside (the implicit function theorem) when they need tangents. `count=True` also
     returns the number of iterations (for tests and profiles). `method` is `"newton"` (the
     default, see the module docstring) or `"itp"`.
 
@@ -82,7 +84,7 @@ def bracketed_root(
     eps = jnp.finfo(jnp.result_type(lo)).eps
     target = jnp.maximum(rel_width * (hi - lo), 4 * eps * jnp.maximum(jnp.abs(lo), jnp.abs(hi)))
     if method == "newton":
-        out = _newton(fn, lo, hi, f_lo, f_hi, target, max_iter)
+        out = _newton(fn, lo, hi, f_lo, f_hi, rel_width * (hi - lo), target, max_iter)
     elif method == "itp":
         out = _itp(fn, lo, hi, f_lo, f_hi, target, max_iter)
     else:
@@ -91,9 +93,17 @@ def bracketed_root(
     return (lo, hi, iterations) if count else (lo, hi)
 
 
-def _newton(fn, lo, hi, f_lo, f_hi, target, max_iter):
-    """Safeguarded Newton: `(lo, hi, iterations)`."""
-    half_target = 0.5 * target
+def _newton(fn, lo, hi, f_lo, f_hi, width, converged, max_iter):
+    """Safeguarded Newton: `(lo, hi, iterations)`.
+
+    Stops when `hi - lo <= width` or when `lo` and `hi` are adjacent floats: `hi` is then
+    *the* first float past the computed sign change, whatever the path to it. (A stop at
+    a few ulps, as ITP's, leaves `hi` anywhere in them, and the landing step's rounding
+    depends on its last bits: an elastic ball's speed drifted by 0.015 or −0.7 ulps per
+    bounce for proposals one ulp apart, tests/hard/test_contacts.py.) A Newton step below
+    `converged` (a few ulps: the rounding of fn) has converged: from there the bracket is
+    closed by points at least one ulp inwards.
+    """
 
     def value_and_slope(s):
         return jax.jvp(fn, (s,), (jnp.ones_like(s),))
@@ -101,7 +111,8 @@ def _newton(fn, lo, hi, f_lo, f_hi, target, max_iter):
     def not_done(carry):
         lo, hi, f_lo, f_hi = carry[:4]
         it = carry[-1]
-        return (it < max_iter) & (hi - lo > target) & (f_hi != 0)
+        apart = (hi - lo > width) & (jnp.nextafter(lo, hi) < hi)
+        return (it < max_iter) & apart & (f_hi != 0)
 
     def body(carry):
         lo, hi, f_lo, f_hi, x, f_x, slope_x, step_last, step_before, it = carry
@@ -116,15 +127,14 @@ def _newton(fn, lo, hi, f_lo, f_hi, target, max_iter):
         # (not the last: after a bisection, the Newton step from the midpoint back to a
         # root near the old end is as long as that bisection step).
         use_newton = has_newton & (newton > lo) & (newton < hi) & (step <= 0.5 * step_before)
-        # Close the bracket: a Newton step below the stopping width has converged (to the
-        # rounding of fn, which can leave it a few ulps long); the point half that width
-        # past the iterate, on the root's side, ends the search (x is always one end of
-        # the bracket: every point evaluated replaces one).
-        closing = has_newton & (step < target)
-        towards_root = jnp.where(f_x > 0, 1.0, -1.0)
+        # Close the bracket: once converged, step to the Newton point if it lies inwards,
+        # else one ulp inwards (x is always one end of the bracket: every point evaluated
+        # replaces one, so "inwards" is towards the other end).
+        closing = has_newton & (step < converged)
+        inwards = jnp.nextafter(x, jnp.where(f_x > 0, hi, lo))
+        close = jnp.where((newton - inwards) * (inwards - x) >= 0, newton, inwards)
         guess = jnp.where(
-            it == 0, falsi,
-            jnp.where(closing, x + towards_root * half_target, jnp.where(use_newton, newton, middle)),
+            it == 0, falsi, jnp.where(closing, close, jnp.where(use_newton, newton, middle))
         )
         guess = jnp.where(jnp.isfinite(guess) & (guess > lo) & (guess < hi), guess, middle)
         f_guess, slope_guess = value_and_slope(guess)
