@@ -20,6 +20,7 @@ import os
 import time
 
 import numpy as np
+from bench_roots import write_result
 
 
 def main(argv=None):
@@ -85,11 +86,7 @@ def main(argv=None):
         r1 = per[name, 0] / per["plain", 0]
         rn = per[name, 1] / per["plain", 1]
         lines.append(f"| {name} | {per[name, 0]:.0f} | {r1:.2f}× | {per[name, 1]:.1f} | {rn:.2f}× |")
-    text = "\n".join(lines) + "\n"
-    print(text)
-    os.makedirs(opts.out, exist_ok=True)
-    with open(os.path.join(opts.out, "unused.md"), "w") as fh:
-        fh.write(text)
+    write_result(lines, opts.out, "unused.md")
 
 
 if __name__ == "__main__":

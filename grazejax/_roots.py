@@ -6,25 +6,26 @@ diffrax locates events with an unbracketed Newton iteration started at the step'
 look for is already bracketed by a sign change inside one step, so we keep the bracket and
 take fast steps inside it.
 
-The default, `"newton"`, is a safeguarded Newton iteration (Numerical Recipes' `rtsafe`,
-plus a bracket-closing phase): the derivative comes with the value from one `jax.jvp` of
-the interpolated gap, a polynomial, so it is exact and cheap. The first point is regula
-falsi; a Newton point outside the bracket, or one that does not halve the step before the
-last, is replaced by the bracket's midpoint; once the Newton step is down to the gap's
-rounding, points at least one ulp inwards close the bracket onto adjacent floats. Under
-`vmap` every lane runs as many iterations as the slowest lane needs, so the count per call
-is what a sweep pays (grazejax issue 14: ITP's 31–47 iterations a call were 83% of a
-random-phase sweep). Measured in single runs at rtol 1e-10 (`benchmarks/bench_roots.py`),
-mean / max iterations per call, ITP → Newton: transversal 7.8 / 9 → 4.2 / 5, near grazing
-(ex1dof μ = 0.2) 12.3 / 19 → 5.2 / 6, Zeno sequence 11.3 / 25 → 7.5 / 10. Near a double
-root Newton converges linearly (halving), like bisection: g = (s − 1)² − 1e-12 takes 26
-iterations (ITP 32).
+Two methods (`method=`, or `search_method` around tracing for side-by-side benchmarks):
 
-The previous method, `"itp"` (Oliveira & Takahashi, ACM TOMS 47(1), 2020: regula falsi,
-truncated towards the midpoint and projected into a shrinking ball around it), is kept
-for comparison (`search_method`): it never needs more than one iteration more than
-bisection, but its projection undoes one-sided convergence, so on interpolated gaps it
-mostly bisects.
+- `"itp"`, the default (Oliveira & Takahashi, ACM TOMS 47(1), 2020): regula falsi,
+  truncated towards the midpoint and projected into a shrinking ball around it; never
+  more than one iteration more than bisection.
+- `"newton"`: a safeguarded Newton iteration (Numerical Recipes' `rtsafe`, plus a
+  bracket-closing phase). The slope comes with the value from one `jax.jvp` of the
+  interpolated gap; the first point is regula falsi; a Newton point outside the bracket,
+  or one that does not halve the step before the last, is replaced by the midpoint; once
+  the Newton step is down to the gap's rounding, points at least one ulp inwards close
+  the bracket onto adjacent floats.
+
+Why ITP stays the default (grazejax issue 14, `benchmarks/bench_roots.py`): in single
+runs Newton takes fewer iterations per call (mean / max, ITP → Newton: transversal
+7.8 / 9 → 4.2 / 5, near grazing 12.3 / 19 → 5.2 / 6, Zeno 11.3 / 25 → 7.5 / 10), but a
+sweep pays, per call, the slowest lane's count times every lane's cost of one iteration:
+over a random-phase ex1dof sweep (Dopri8, 1e-8) the per-lane mean was 9.8 vs 9.2, with a
+longer tail for Newton (max 38 against 21: near-grazing crossings converge linearly, like a
+double root), and an iteration with a jvp costs more. Measured side by side, 256 lanes:
+random phases 391 vs 641 µs per trajectory (ITP vs Newton), in phase within noise.
 """
 
 import contextlib
@@ -34,7 +35,7 @@ import jax.lax as lax
 import jax.numpy as jnp
 
 _METHODS = ("newton", "itp")
-_default_method = "newton"
+_default_method = "itp"
 
 
 @contextlib.contextmanager
@@ -61,8 +62,8 @@ def bracketed_root(
     the initial bracket, or a few ulps (the default; adjacent floats with `"newton"`).
     `hi` is the first point at or past the sign change. The result carries no
     derivative: callers apply one Newton step outside (the implicit function theorem) when they need tangents. `count=True` also
-    returns the number of iterations (for tests and profiles). `method` is `"newton"` (the
-    default, see the module docstring) or `"itp"`.
+    returns the number of iterations (for tests and profiles). `method` is `"itp"` (the
+    default, see the module docstring) or `"newton"`.
 
     Why to machine precision by default: the landing step's Newton correction leaves an
     error e²·|g''|/(2|g'|) for a proposal error e, which is not small near grazing or in a

@@ -70,7 +70,7 @@ def test_random_smooth_roots():
 
 @pytest.mark.parametrize("name", sorted(CASES))
 def test_newton_and_itp_agree(name):
-    """The default (safeguarded Newton) against the ITP search it replaced: the same root,
+    """The safeguarded Newton search against ITP (the default): the same root,
     the bracket closed onto adjacent floats, and few iterations on simple roots."""
     fn, lo0, hi0, root = CASES[name]
     lo0, hi0 = jnp.float64(lo0), jnp.float64(hi0)
