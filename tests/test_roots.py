@@ -66,3 +66,24 @@ def test_random_smooth_roots():
         assert abs(float(hi) - r) <= 8 * EPS
         counts.append(int(iterations))
     assert np.mean(counts) <= 15, counts
+
+
+@pytest.mark.parametrize("name", sorted(CASES))
+def test_newton_and_itp_agree(name):
+    """The safeguarded Newton search against ITP (the default): the same root,
+    the bracket closed onto adjacent floats, and few iterations on simple roots."""
+    fn, lo0, hi0, root = CASES[name]
+    lo0, hi0 = jnp.float64(lo0), jnp.float64(hi0)
+
+    def search(method):
+        return jax.jit(lambda: bracketed_root(
+            fn, lo0, hi0, fn(lo0), fn(hi0), count=True, method=method))()
+
+    lo, hi, iterations = search("newton")
+    _, hi_itp, iterations_itp = search("itp")
+    assert float(fn(lo)) > 0 >= float(fn(hi))
+    assert float(np.nextafter(float(lo), np.inf)) >= float(hi) or float(fn(hi)) == 0
+    assert abs(float(hi) - float(hi_itp)) <= 8 * EPS * max(1.0, abs(root))
+    assert int(iterations) <= int(iterations_itp)
+    if name in ("linear", "quadratic", "exponential", "offset clock"):
+        assert int(iterations) <= 12

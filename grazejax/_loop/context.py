@@ -57,6 +57,13 @@ class LoopContext(eqx.Module):
     nan: RealScalar
 
     @property
+    def free_term(self) -> diffrax.ODETerm:
+        """The loop's field without the sliding force (`term` itself unless sticky)."""
+        if not self.sticky:
+            return self.term
+        return diffrax.ODETerm(loop_field(self.vector_field, self.pieces, self.sigma, False))
+
+    @property
     def mask_shape(self) -> tuple[int, int]:
         return (self.m, self.max_signs)
 

@@ -58,8 +58,16 @@ def detect(ctx: LoopContext, c: LoopState, step: Step) -> Detection:
     first = jax.lax.stop_gradient(jnp.min(times)) if ctx.m > 0 else jnp.array(jnp.inf, ctx.dtype)
     releasing = jnp.array(False)
     if ctx.sticky:
-        release, t_release = locate_release(
-            ctx, c, sa, sb, y1, step.interp.evaluate, detecting
+        # Φ̈ of the slid-on surface at both ends, only while some lane slides (every step
+        # paid for it in runs that never slide: grazejax issue 14).
+        def release_test():
+            return locate_release(ctx, c, sa, sb, y1, step.interp.evaluate, detecting)
+
+        def no_release():
+            return jnp.array(False), jnp.array(jnp.inf, ctx.dtype)
+
+        release, t_release = lax.cond(
+            eqxi.unvmap_any(detecting & jnp.any(c.stick)), release_test, no_release
         )
         releasing = release & (t_release <= first)
         first = jnp.minimum(first, t_release)

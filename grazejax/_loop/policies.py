@@ -114,23 +114,48 @@ def stick_at_start(ctx: "LoopContext", x0, args, stuck0, status0, zeno_time0, lo
 
 def locate_release(ctx: "LoopContext", c: "LoopState", sa, sb, y1, y_of, detecting):
     """The end of sliding in this step: the free flow's Φ̈ on the sliding surface reaches
-    0 from below. Returns `(release, t_release)`: found in the step, and its local time."""
+    0 from below. Returns `(release, t_release)`: found in the step, and its local time.
+
+    As for the gap's dips (diffrax #507), a sign test at the step's ends is not enough: a
+    state sliding at rest has a zero error estimate, its steps grow tenfold each, and Φ̈
+    can rise above 0 and fall back inside one step (found: a forced oscillator resting on
+    its stop slid through a whole forcing period, `test_forced_oscillator_chatters_...`).
+    So an interior maximum of Φ̈ (its rate going from > 0 to < 0) is located too, and is
+    a release if Φ̈ reaches 0 there.
+    """
     args_ = c.args
 
     def pull(s_, y_):
         return ctx.sliding_pull(c.stick, s_, y_, c.t_hi, c.t_lo, args_)
 
+    def pull_along(s_):
+        return pull(s_, y_of(s_))
+
+    def rate(s_):
+        return jax.jvp(pull_along, (s_,), (jnp.ones_like(s_),))[1]
+
+    sliding = detecting & jnp.any(c.stick)
     pull_a, pull_b = pull(sa, c.y), pull(sb, y1)
-    release = detecting & jnp.any(c.stick) & (pull_b >= 0)
+    rate_a, rate_b = rate(sa), rate(sb)
+    at_end = sliding & (pull_b >= 0)
+    peak = sliding & (pull_a < 0) & (pull_b < 0) & (rate_a > 0) & (rate_b < 0)
 
     def bracket():
+        # The maximum of Φ̈ (root of its rate, from > 0 to < 0); inactive lanes get an
+        # empty bracket, so they cost no iterations under vmap.
+        _, s_max = bracketed_root(rate, jnp.where(peak, sa, sb), sb, rate_a, rate_b)
+        s_max = jnp.where(peak, s_max, sb)
+        pull_max = jnp.where(peak, pull_along(s_max), pull_b)
+        release = at_end | (peak & (pull_max >= 0))
         # bracketed_root wants f(lo) > 0 >= f(hi): search the sign change of −Φ̈;
         # `hi` is the first point at or past it, so the state leaves pulled away.
-        lo = jnp.where(release & (pull_a < 0), sa, sb)
-        _, hi = bracketed_root(lambda s_: -pull(s_, y_of(s_)), lo, sb, -pull_a, -pull_b)
-        return hi
+        lo = jnp.where(release & (pull_a < 0), sa, s_max)
+        _, hi = bracketed_root(lambda s_: -pull_along(s_), lo, s_max, -pull_a, -pull_max)
+        return release, hi
 
-    t_release = lax.cond(eqxi.unvmap_any(release), bracket, lambda: sb)
+    release, t_release = lax.cond(
+        eqxi.unvmap_any(at_end | peak), bracket, lambda: (jnp.zeros_like(at_end), sb)
+    )
     t_release = jax.lax.stop_gradient(jnp.where(release, t_release, jnp.inf))
     return release, t_release
 

@@ -38,9 +38,21 @@ def take_step(ctx: LoopContext, c: LoopState) -> Step:
     s_end = ctx.s_end_of(c.t_hi, c.t_lo)
     sa = c.s
     sb = jnp.where(c.landing, c.target, jnp.minimum(sa + c.h, s_end))
-    y1, y_error, dense_info, solver_state1, _ = solver.step(
-        ctx.term, sa, sb, c.y, targs, c.solver_state, c.made_jump
-    )
+
+    def step_with(term):
+        return solver.step(term, sa, sb, c.y, targs, c.solver_state, c.made_jump)
+
+    if ctx.sticky:
+        # The sliding field only while some lane slides: decided once per step, not per
+        # stage (the field's own `cond`, evaluated in each of the 6–13 stages, made
+        # zeno="stick" cost 1.52× in runs that never slide: grazejax issue 14). The free
+        # field is the sliding field's no-lane-slides branch: results are unchanged.
+        y1, y_error, dense_info, solver_state1, _ = lax.cond(
+            eqxi.unvmap_any(jnp.any(c.stick)),
+            lambda: step_with(ctx.term), lambda: step_with(ctx.free_term),
+        )
+    else:
+        y1, y_error, dense_info, solver_state1, _ = step_with(ctx.term)
     # A NaN error estimate must reject the step, not poison the controller (diffrax #143).
     y_error = error_or_zero(y_error, y1)
     y_error = jnp.where(jnp.isnan(y_error), jnp.inf, y_error)

@@ -1,0 +1,93 @@
+"""Unrequested effects should cost nothing: the price of options a run does not use.
+
+    python benchmarks/bench_unused.py [--lanes N] [--repeats R] [--out DIR]
+
+Two options that a run can carry without using them (grazejax issue 14, target ≤ 1.05×):
+
+- `zeno="stick"` in a run that never slides (ex1dof μ = 0.2 impacts transversally);
+- a large impact log, `max_impacts=4096`, of which 9 rows are used (vs `max_impacts=16`).
+
+Each ratio is measured side by side in one process, the two configurations interleaved
+(median of `--repeats` timings of each), at batch 1 (`jit(simulate)`) and at batch N
+(`jit(vmap(simulate))`). Wall-clock µs per trajectory; the run is t ∈ [0, 60] from the
+cycle's post-impact state (9 impacts), Tsit5 at rtol = atol = 1e-10.
+
+Writes DIR/unused.md (default benchmarks/results).
+"""
+
+import argparse
+import os
+import time
+
+import numpy as np
+from bench_roots import write_result
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--lanes", type=int, default=256)
+    parser.add_argument("--repeats", type=int, default=15)
+    parser.add_argument("--out", default=os.path.join(os.path.dirname(__file__), "results"))
+    opts = parser.parse_args(argv)
+
+    import jax
+    import jax.numpy as jnp
+
+    jax.config.update("jax_enable_x64", True)
+    import grazejax as gj
+    from grazejax import examples as ex
+
+    scene, args = ex.ex1dof(), ex.ex1dof_args(0.2)
+    x_cycle = np.array([0.0, 0.0384224329])  # the μ = 0.2 cycle after its impact
+    rng = np.random.default_rng(0)
+    x_batch = np.tile(x_cycle, (opts.lanes, 1))
+    x_batch[:, 1] += rng.uniform(-0.01, 0.01, opts.lanes)
+
+    def run_fn(**kw):
+        def one(x0):
+            return gj.simulate(scene, x0, 0.0, 60.0, args, rtol=1e-10, atol=1e-10, **kw)
+
+        return jax.jit(one), jax.jit(jax.vmap(one))
+
+    configs = {
+        "plain": dict(max_impacts=16),
+        "zeno='stick'": dict(max_impacts=16, zeno="stick"),
+        "max_impacts=4096": dict(max_impacts=4096),
+    }
+    runs = {name: run_fn(**kw) for name, kw in configs.items()}
+    inputs = (jnp.asarray(x_cycle), jnp.asarray(x_batch))
+    for name, fns in runs.items():  # compile, warm, and check the runs do what we claim
+        for fn, x in zip(fns, inputs, strict=True):
+            sol = jax.block_until_ready(fn(x))
+            impacts = np.atleast_1d(np.asarray(sol.num_impacts))
+            status = np.atleast_1d(np.asarray(sol.status))
+            kinds = np.asarray(sol.impact_kind)
+            if np.any(status != int(gj.Status.SUCCESS)) or np.any(
+                kinds == int(gj.ImpactKind.STICK)
+            ):
+                raise RuntimeError(f"{name}: a run did not end as expected")
+    print("impacts per run:", int(impacts[0]))
+    times = {(name, b): [] for name in runs for b in (0, 1)}
+    for _ in range(opts.repeats):
+        for name, fns in runs.items():
+            for b, (fn, x) in enumerate(zip(fns, inputs, strict=True)):
+                t = time.perf_counter()
+                jax.block_until_ready(fn(x))
+                times[name, b].append(time.perf_counter() - t)
+    per = {k: np.median(v) / (1 if k[1] == 0 else opts.lanes) * 1e6 for k, v in times.items()}
+    lines = [
+        "# Unused options: cost relative to a plain run (target ≤ 1.05×)", "",
+        f"ex1dof μ = 0.2, t ∈ [0, 60] ({int(impacts[0])} impacts, no sliding), Tsit5 1e-10; "
+        f"wall µs per trajectory, median of {opts.repeats} interleaved repeats.", "",
+        f"| configuration | batch 1 | ratio | batch {opts.lanes} | ratio |",
+        "|---|---:|---:|---:|---:|",
+    ]
+    for name in runs:
+        r1 = per[name, 0] / per["plain", 0]
+        rn = per[name, 1] / per["plain", 1]
+        lines.append(f"| {name} | {per[name, 0]:.0f} | {r1:.2f}× | {per[name, 1]:.1f} | {rn:.2f}× |")
+    write_result(lines, opts.out, "unused.md")
+
+
+if __name__ == "__main__":
+    main()
