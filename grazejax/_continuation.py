@@ -44,10 +44,13 @@ from ._orbit_common import (
     _a5,
     _bordered_newton,
     _continuation_settings,
+    _grown_step,
     _linearize,
+    _next_tangent,
     _PeriodMap,
     _sampled,
     _state_at,
+    _step_accepted,
     _write_text,
 )
 from ._periodic import Orbit, OrbitStatus, find_periodic_orbit, orbit_contacts
@@ -339,12 +342,7 @@ def _correct(fam: _Family, Y_pred, tangent, t0, e_j, c, T_fixed, ts_unit):
         j = int(np.argmax(e))
         free = [k for k in range(n) if k != j]
         a6 = np.column_stack([dP_dT, (M - np.eye(n))[:, free]])
-    # Next tangent: the null vector of J, oriented along the old one ([J; tᵀ] τ = e_last).
-    A = np.vstack([J, np.asarray(tangent)[None]])
-    rhs = np.zeros(Y_np.shape[0])
-    rhs[-1] = 1.0
-    new_tangent = np.linalg.solve(A, rhs)
-    new_tangent /= np.linalg.norm(new_tangent)
+    new_tangent = _next_tangent(J, tangent)
     multipliers = _eig_sorted(M)
     # Extremes along the orbit (amplitude), from samples plus the impact states.
     ts = t0 + float(T) * ts_unit
@@ -628,10 +626,8 @@ class _Tracer:
         Y_pred = current["Y"] + h * tangent
         new = _correct(self.fam, Y_pred, tangent, self.t0, e_j, c, self.T_fixed, self.ts_unit)
         k_now = int(current["num_impacts"])
-        accepted = (
-            bool(new["good"]) and float(jnp.dot(new["tangent"], tangent)) > 0.5
-            and float(jnp.linalg.norm(new["Y"] - Y_pred)) <= 3 * h
-        )
+        accepted = bool(new["good"]) and _step_accepted(new["Y"], new["tangent"], Y_pred,
+                                                        tangent, h)
         boundary = None
         if accepted and int(new["num_impacts"]) != k_now:
             accepted, boundary = self._cross_grazing(new, tangent, k_now)
@@ -694,8 +690,7 @@ class _Tracer:
             self._add_special(new)
         self.points.append(_record(new, self.fixed))
         self.current = new
-        if int(new["steps"]) <= 3:
-            self.h = min(1.5 * self.h, self.ds_max)
+        self.h = _grown_step(self.h, new["steps"], self.ds_max)
         self._tick(mu=f"{float(new['Y'][-1]):.5g}", impacts=int(new["num_impacts"]),
                    ds=f"{self.h:.2g}")
 

@@ -42,8 +42,11 @@ from ._orbit_common import (
     SolverSettings,
     _bordered_newton,
     _continuation_settings,
+    _grown_step,
+    _next_tangent,
     _PeriodMap,
     _sampled,
+    _step_accepted,
     _write_text,
 )
 from ._periodic import Orbit, OrbitStatus, orbit_contacts
@@ -175,10 +178,7 @@ def _correct(system, Y_pred, tangent, t_fixed, T_fixed, ts_unit):
     J = np.asarray(_jacobian(system, Y, t_fixed, T_fixed))
     if not np.all(np.isfinite(J)):
         return None
-    rhs = np.zeros(Y_np.shape[0])
-    rhs[-1] = 1.0
-    new_tangent = np.linalg.solve(np.vstack([J, np.asarray(tangent)[None]]), rhs)
-    new_tangent /= np.linalg.norm(new_tangent)
+    new_tangent = _next_tangent(J, tangent)
     curvature, min_gap, k, T = (np.asarray(v) for v in _diagnostics(system, Y, t_fixed, T_fixed,
                                                                       ts_unit))
     return dict(Y=Y_np, tangent=new_tangent, steps=int(steps), curvature=float(curvature),
@@ -263,13 +263,12 @@ def _trace(system, first, mu_stop, nu_range, direction, ds, ds_min, ds_max, max_
                 points.append(dict(last, tangent=direction * last["tangent"]))
                 return points, ContinuationStatus.REACHED_STOP
         new = _correct(system, Y_pred, tangent, t_fixed, T_fixed, ts_unit)
-        accepted = (new is not None and float(np.dot(new["tangent"], tangent)) > 0.5
-                    and float(np.linalg.norm(new["Y"] - Y_pred)) <= 3 * h)
+        accepted = new is not None and _step_accepted(new["Y"], new["tangent"], Y_pred,
+                                                      tangent, h)
         if accepted:
             points.append(new)
             current = new
-            if new["steps"] <= 3:
-                h = min(1.5 * h, ds_max)
+            h = _grown_step(h, new["steps"], ds_max)
             if bar is not None:
                 bar.update(1)
                 bar.set_postfix(mu=f"{new['Y'][-2]:.5g}", nu=f"{new['Y'][-1]:.5g}", ds=f"{h:.2g}")
