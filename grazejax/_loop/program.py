@@ -109,7 +109,8 @@ def build_context(
         tol_r=getattr(controller, "rtol", rtol), tol_a=getattr(controller, "atol", atol),
         solver=solver, controller=controller, has_error=has_error, term=term,
         error_order=solver.error_order(term), kinds=kinds, policy=policy, sticky=sticky,
-        check_field_jumps=bool(check_field_jumps) and m > 0, dt0=dt0, max_impacts=max_impacts, max_steps=max_steps, zeno_rtol=zeno_rtol,
+        check_field_jumps=bool(check_field_jumps) and m > 0, dt0=dt0, max_impacts=max_impacts,
+        max_steps=max_steps, zeno_rtol=zeno_rtol,
         zero=jnp.zeros((), dtype), nan=jnp.array(jnp.nan, dtype),
     )
 
