@@ -1,6 +1,7 @@
 """The search for a contact inside an accepted step (see `_events.py` for the tests)."""
 
-from typing import NamedTuple
+import functools
+from typing import Any, NamedTuple
 
 import equinox.internal as eqxi
 import jax
@@ -11,6 +12,7 @@ from jaxtyping import Array, Bool
 from .._custom_types import BoolScalar, RealScalar
 from .._events import is_candidate, locate, step_ends
 from .._geometry import FLOOR_ULPS
+from .compact import per_lane
 from .context import LoopContext
 from .policies import locate_release
 from .state import LoopState
@@ -41,16 +43,18 @@ def detect(ctx: LoopContext, c: LoopState, step: Step) -> Detection:
             candidate = candidate | ((crossing | dip) & ~c.stick[i])
     candidate = detecting & candidate
 
-    def search():
-        return _search(ctx, c, step, ends)
-
-    def no_search():
-        return _nothing_found(ctx)
-
     if ctx.m > 0:
-        found, times, touch, boundary = lax.cond(eqxi.unvmap_any(candidate), search, no_search)
+        # Only the lanes with a candidate pay for the searches under vmap (`compact.py`).
+        inputs = SearchInputs(
+            step.sa, step.sb, step.y1, step.interp, c.args, c.t_hi, c.t_lo, c.restart,
+            c.flight_scale, tuple(tuple(e for _, e in row) for row in ends),
+        )
+        found, times, touch, boundary = per_lane(
+            functools.partial(_search, ctx), candidate, inputs,
+            lambda _: _nothing_found(ctx),
+        )
     else:
-        found, times, touch, boundary = no_search()
+        found, times, touch, boundary = _nothing_found(ctx)
     found = found & candidate & ~c.stick[:, None]
     times = jnp.where(found, times, jnp.inf)
     event = jnp.any(found)
@@ -92,28 +96,45 @@ def _step_ends(ctx: LoopContext, c: LoopState, step: Step):
     return ends
 
 
-def _search(ctx: LoopContext, c: LoopState, step: Step, ends):
+class SearchInputs(NamedTuple):
+    """What the search of one lane reads: the step, its clock and the gaps at its ends."""
+
+    sa: RealScalar
+    sb: RealScalar
+    y1: Array
+    interp: Any  # the step's dense output
+    args: Any
+    t_hi: RealScalar
+    t_lo: RealScalar
+    restart: Bool[Array, " m"]
+    flight_scale: Array
+    ends: tuple  # per piece, per side: `StepEnds`
+
+
+def _search(ctx: LoopContext, inputs: SearchInputs):
     """Locate the contact of every piece and side in the step: `(found, times, touch,
     boundary)`, each [m, signs]."""
-    sa, sb, y1, args_ = step.sa, step.sb, step.y1, c.args
-    y_of = step.interp.evaluate
+    sa, sb, y1, args_ = inputs.sa, inputs.sb, inputs.y1, inputs.args
+    t_hi, t_lo = inputs.t_hi, inputs.t_lo
+    y_of = inputs.interp.evaluate
     mask_shape = ctx.mask_shape
     found = jnp.zeros(mask_shape, bool)
     times = jnp.full(mask_shape, jnp.inf, ctx.dtype)
     touch = jnp.zeros(mask_shape, bool)
     boundary = jnp.zeros(mask_shape, bool)
     for i, piece in enumerate(ctx.pieces):
-        for k, (g, e) in enumerate(ends[i]):
-            x_scale = jnp.maximum(c.flight_scale, jnp.abs(y1))
+        for k, (sign, e) in enumerate(zip(piece.signs, inputs.ends[i], strict=True)):
+            g = ctx.gap_along(piece, sign, y_of, t_hi, t_lo, args_)
+            x_scale = jnp.maximum(inputs.flight_scale, jnp.abs(y1))
             # Round-off of a step also grows with its length: add h·max|ġ| (a
             # long step of an exactly integrated flow carries ~100s of ulps).
             step_term = FLOOR_ULPS * ctx.eps * (sb - sa) * jnp.maximum(
                 jnp.abs(e.slope_start), jnp.abs(e.slope_end)
             )
-            floor = piece.floor(ctx.abs_time(sb, c.t_hi, c.t_lo), y1, args_, x_scale)
+            floor = piece.floor(ctx.abs_time(sb, t_hi, t_lo), y1, args_, x_scale)
             floor = floor + jax.lax.stop_gradient(step_term)
-            contact = locate(g, sa, sb, e, c.restart[i], floor)
-            t_abs = ctx.abs_time(contact.time, c.t_hi, c.t_lo)
+            contact = locate(g, sa, sb, e, inputs.restart[i], floor)
+            t_abs = ctx.abs_time(contact.time, t_hi, t_lo)
             inside, on_boundary = piece.inside(t_abs, y_of(contact.time), args_, ctx.state_tol)
             ok = contact.found & inside
             found = found.at[i, k].set(ok)

@@ -10,6 +10,7 @@ import jax.numpy as jnp
 from .._geometry import FLOOR_ULPS, is_tangential
 from .._roots import safe_divide
 from .._status import Status
+from .compact import per_lane
 from .context import LoopContext
 from .field import field_jumps
 from .policies import keep_sliding, start_or_end_sliding, zeno_test
@@ -23,18 +24,28 @@ def land_if_due(ctx: LoopContext, c: LoopState, step: Step):
     # The branch returns only small values: the log and save buffers are written below,
     # outside the cond, one row at a time (threading them through the cond made every
     # iteration copy them: cost grew with max_impacts and len(saveat)).
-    def land():
-        return _land(ctx, c, step.y1, step.sa, step.sb)
+    def land(operands):
+        small, y_star, sa, s_star = operands
+        return _land(ctx, small, y_star, sa, s_star)
 
-    def no_land():
-        return _no_landing(ctx, c)
+    def no_land(operands):
+        return _no_landing(ctx, operands[0])
 
-    if ctx.m > 0:
-        landed_small, rows, t_event, s_save = lax.cond(
-            eqxi.unvmap_any(c.landing & ~c.done), land, no_land
+    lands = c.landing & ~c.done
+    operands = (without_buffers(c), step.y1, step.sa, step.sb)
+    if ctx.m == 0:
+        landed_small, rows, t_event, s_save = no_land(operands)
+    elif ctx.kinds.outer == "lax":
+        # Only the landing lanes pay for the landing under vmap (`compact.py`; a
+        # differentiated call runs it uncompacted). Reverse-mode loops keep the plain
+        # cond: a custom batching rule has no transpose.
+        landed_small, rows, t_event, s_save = per_lane(
+            land, lands, operands, no_land, differentiable=True
         )
     else:
-        landed_small, rows, t_event, s_save = no_land()
+        landed_small, rows, t_event, s_save = lax.cond(
+            eqxi.unvmap_any(lands), land, no_land, operands
+        )
     log = (c.log_t, c.log_pre, c.log_post, c.log_surface, c.log_kind)
     count = jnp.array(0)
     for slot in range(rows[0].shape[0]):
@@ -49,14 +60,14 @@ def land_if_due(ctx: LoopContext, c: LoopState, step: Step):
     return landed, t_event, s_save
 
 
-def _no_landing(ctx: LoopContext, c: LoopState):
+def _no_landing(ctx: LoopContext, small: LoopState):
     n, dtype = ctx.n, ctx.dtype
     slots = sum(len(p.signs) for p in ctx.pieces) + int(ctx.sticky)
     rows = (
         jnp.zeros((slots,), bool), jnp.zeros((slots, n), dtype), jnp.zeros((slots, n), dtype),
         jnp.zeros((slots,), jnp.asarray(0).dtype), jnp.zeros((slots,), jnp.asarray(0).dtype),
     )
-    return without_buffers(c), rows, jnp.zeros((), dtype), jnp.array(-jnp.inf, dtype)
+    return small, rows, jnp.zeros((), dtype), jnp.array(-jnp.inf, dtype)
 
 
 def _land(ctx: LoopContext, c: LoopState, y_star, sa, s_star):
