@@ -3,23 +3,22 @@ import os
 import tempfile
 from pathlib import Path
 
+import jax
+import pytest
+
+jax.config.update("jax_enable_x64", True)
+
 # Compiling is most of the suite's time, and many tests compile the same program again: a
 # scene built afresh (`examples.ex1dof()` makes new closures, so `jit` misses) or a module
 # run after `jax.clear_caches()` (below) gives the same XLA program. JAX's persistent cache
 # (keyed on the program, not on source locations) loads those instead of recompiling them:
 # a repeated ex1dof simulator took 5-6 s to compile, 1.7 s from the cache. The folder is the
 # test run's own, in the temp folder, shared by both CI jobs and by the child processes the
-# tests start (notebook kernels, `grazejax bench`, multi-process sweeps), which read the
-# same environment variables. Set JAX_COMPILATION_CACHE_DIR yourself to put it elsewhere.
+# tests start (notebook kernels, `grazejax bench`, multi-process sweeps): they read it from
+# the environment, this process from the config. Set JAX_COMPILATION_CACHE_DIR to move it.
 _TEST_CACHE = Path(tempfile.gettempdir()) / f"grazejax-tests-xla-cache-{os.getuid()}"
 os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", str(_TEST_CACHE))
 os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.5")
-
-import jax  # noqa: E402  (after the environment it reads at import)
-import pytest  # noqa: E402
-
-jax.config.update("jax_enable_x64", True)
-# In case jax was imported before this file (a plugin): the same settings, from the same place.
 jax.config.update("jax_compilation_cache_dir", os.environ["JAX_COMPILATION_CACHE_DIR"])
 jax.config.update("jax_persistent_cache_min_compile_time_secs",
                   float(os.environ["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"]))
