@@ -15,6 +15,7 @@ from .._scene import Scene
 from .._solution import Solution
 from .._status import ImpactKind, Status
 from .._stepping import loop_controller
+from .._unrolled import UnrolledERK, unrollable
 from .context import LoopContext, loop_field
 from .detect import Detection, detect
 from .field import field_jumps
@@ -86,7 +87,11 @@ def build_context(
     # autodiff cannot enter; a plain lax loop supports jvp, jacfwd and vmap. The adjoint
     # decides (see `_adjoint`); a kind the user set on the solver is kept.
     kinds = loop_kinds(adjoint)
-    if getattr(solver, "scan_kind", "lax") is None and kinds.stages is not None:
+    if unrollable(solver):
+        # Diffrax's explicit tableaus as straight-line stages: no inner loop, and both
+        # autodiff modes (see `_unrolled`).
+        solver = UnrolledERK(solver)
+    elif getattr(solver, "scan_kind", "lax") is None and kinds.stages is not None:
         solver = eqx.tree_at(
             lambda s: s.scan_kind, solver, kinds.stages, is_leaf=lambda x: x is None
         )
