@@ -199,13 +199,18 @@ def section_direct(sizes, budget_s, max_repeats):
     return rows
 
 
-def fourier_loss(coefficients, observed, adjoint, harmonics, num_times, max_steps=100_000):
+def fourier_run(coefficients, harmonics, num_times, adjoint=None, max_steps=100_000):
+    """The Fourier-forced oscillator from rest to its `num_times`-th impact."""
     a, b = coefficients[:harmonics], coefficients[harmonics:]
     args = examples.fourier_impact_oscillator_args(a, b)
-    sol = gj.simulate(
+    return gj.simulate(
         FOURIER, jnp.zeros(2), 0.0, jnp.inf, args, max_impacts=num_times, adjoint=adjoint,
         max_steps=max_steps, **TOL,
     )
+
+
+def fourier_loss(coefficients, observed, adjoint, harmonics, num_times, max_steps=100_000):
+    sol = fourier_run(coefficients, harmonics, num_times, adjoint, max_steps)
     return jnp.sum((sol.impact_times - observed) ** 2)
 
 
@@ -221,19 +226,12 @@ def fourier_profiles(harmonics):
 
 def section_many(harmonics, num_times, budget_s, max_repeats):
     true, start = fourier_profiles(harmonics)
-    args = examples.fourier_impact_oscillator_args(true[:harmonics], true[harmonics:])
-    observed = gj.simulate(
-        FOURIER, jnp.zeros(2), 0.0, jnp.inf, args, max_impacts=num_times, **TOL
-    ).impact_times
+    observed = fourier_run(jnp.asarray(true), harmonics, num_times).impact_times
     c = jnp.asarray(start)
     rca, direct = diffrax.RecursiveCheckpointAdjoint(), diffrax.DirectAdjoint()
     # DirectAdjoint stores every step up to max_steps: sized, as in section 3, to 1.5× the
     # steps of the run from the start profile (the run a fit begins with).
-    steps = int(gj.simulate(
-        FOURIER, jnp.zeros(2), 0.0, jnp.inf,
-        examples.fourier_impact_oscillator_args(c[:harmonics], c[harmonics:]),
-        max_impacts=num_times, **TOL,
-    ).num_steps)
+    steps = int(fourier_run(c, harmonics, num_times).num_steps)
     max_steps = int(1.5 * steps)
     fns = {
         "primal": lambda c, o: fourier_loss(c, o, None, harmonics, num_times),

@@ -83,13 +83,13 @@ def build_context(
         stepsize_controller, solver, rtol=rtol, atol=atol, dt0=dt0, has_error_estimate=has_error
     )
     solver = _with_implicit_tolerances(solver, controller)
-    # Runge-Kutta stages default to a checkpointed loop (custom_vjp), which forward-mode
-    # autodiff cannot enter; a plain lax loop supports jvp, jacfwd and vmap. The adjoint
-    # decides (see `_adjoint`); a kind the user set on the solver is kept.
+    # Diffrax's explicit tableaus run as straight-line stages: no inner loop, and both
+    # autodiff modes (see `_unrolled`). Other Runge-Kutta stages default to a checkpointed
+    # loop (custom_vjp), which forward-mode autodiff cannot enter; a plain lax loop supports
+    # jvp, jacfwd and vmap. The adjoint decides (see `_adjoint`); a kind the user set on
+    # the solver is kept.
     kinds = loop_kinds(adjoint)
     if unrollable(solver):
-        # Diffrax's explicit tableaus as straight-line stages: no inner loop, and both
-        # autodiff modes (see `_unrolled`).
         solver = UnrolledERK(solver)
     elif getattr(solver, "scan_kind", "lax") is None and kinds.stages is not None:
         solver = eqx.tree_at(
