@@ -36,7 +36,6 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optimistix as optx
 
 from ._geometry import gap_rates
 from ._orbit_common import (
@@ -46,12 +45,14 @@ from ._orbit_common import (
     _continuation_settings,
     _grown_step,
     _linearize,
+    _newton_for,
     _next_tangent,
     _PeriodMap,
     _sampled,
     _state_at,
     _step_accepted,
     _write_text,
+    orbit_kernel,
 )
 from ._periodic import Orbit, OrbitStatus, find_periodic_orbit, orbit_contacts
 from ._scene import Scene
@@ -276,7 +277,7 @@ class _Family(eqx.Module):
     args_of: Callable = eqx.field(static=True)
     period_of: Callable | None = eqx.field(static=True)
     fixed_period: bool = eqx.field(static=True)
-    root_finder: Any = eqx.field(static=True)
+    root_finder: Any  # (its tolerances are arrays: see `_newton_for`)
     max_steps: int = eqx.field(static=True)
 
 
@@ -300,7 +301,7 @@ def _criterion(fam: _Family, Y, t0, e_j, c, T_fixed):
     return jnp.where(ok, rows, jnp.nan), (ok, sol)
 
 
-@eqx.filter_jit
+@orbit_kernel
 def _corrector(fam: _Family, Y_pred, tangent, t0, e_j, c, T_fixed):
     """Newton on [F(Y); tangent·(Y − Y_pred)] = 0 (the only program compiled for continuation)."""
     return _bordered_newton(lambda Y: _criterion(fam, Y, t0, e_j, c, T_fixed)[0],
@@ -478,7 +479,7 @@ def continue_orbit(
     pmap = _PeriodMap(scene=scene, end_impacts=0, **kw)
     fam = _Family(
         pmap=pmap, args_of=args_of, period_of=period_of, fixed_period=fixed,
-        root_finder=optx.Newton(rtol=newton_tol, atol=newton_tol * scale),
+        root_finder=_newton_for(newton_tol, scale),
         max_steps=int(max_newton_steps),
     )
     ts_unit = jnp.linspace(0.0, 1.0, int(num_samples), endpoint=False)
@@ -968,7 +969,7 @@ def _special_points(natural, before, a, b, fixed, tol, t0, max_solves=16):
     return found
 
 
-@eqx.filter_jit
+@orbit_kernel
 def _impact_closure(free: _PeriodMap, surface, fixed: bool, z, time, args):
     """Residual and Jacobian of an orbit closed by one impact, as a flight (no impacts
     inside): unknowns z = (s, x⁻) with s the impact time θ (forced: the period is `time`)

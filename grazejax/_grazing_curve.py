@@ -34,7 +34,6 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optimistix as optx
 
 from ._continuation import ContinuationStatus, GrazingPoint
 from ._geometry import gap_rates
@@ -43,11 +42,13 @@ from ._orbit_common import (
     _bordered_newton,
     _continuation_settings,
     _grown_step,
+    _newton_for,
     _next_tangent,
     _PeriodMap,
     _sampled,
     _step_accepted,
     _write_text,
+    orbit_kernel,
 )
 from ._periodic import Orbit, OrbitStatus, orbit_contacts
 from ._scene import Scene
@@ -120,7 +121,7 @@ class _GrazingSystem(eqx.Module):
     args_of: Callable = eqx.field(static=True)
     period_of: Callable | None = eqx.field(static=True)
     fixed_period: bool = eqx.field(static=True)
-    root_finder: Any = eqx.field(static=True)
+    root_finder: Any  # (its tolerances are arrays: see `_newton_for`)
     max_steps: int = eqx.field(static=True)
 
 
@@ -143,20 +144,20 @@ def _residual(system: _GrazingSystem, Y, t_fixed, T_fixed):
     return jnp.where(ok, rows, jnp.nan)
 
 
-@eqx.filter_jit
+@orbit_kernel
 def _corrector(system: _GrazingSystem, Y_pred, tangent, t_fixed, T_fixed):
     """Newton on [G(Y); tangent·(Y − Y_pred)] = 0."""
     return _bordered_newton(lambda Y: _residual(system, Y, t_fixed, T_fixed), system.root_finder,
                             system.max_steps, Y_pred, tangent)
 
 
-@eqx.filter_jit
+@orbit_kernel
 def _jacobian(system: _GrazingSystem, Y, t_fixed, T_fixed):
     """∂G/∂Y, (n + 2) × (n + 3), by forward mode (for the tangent)."""
     return jax.jacfwd(lambda y: _residual(system, y, t_fixed, T_fixed))(Y)
 
 
-@eqx.filter_jit
+@orbit_kernel
 def _diagnostics(system: _GrazingSystem, Y, t_fixed, T_fixed, ts_unit):
     """Curvature d²Φ/dt² at the contact, min Φ along the orbit, impacts on other surfaces."""
     t0, T, x, mu, nu = _unpack(system, Y, t_fixed, T_fixed)
@@ -221,7 +222,7 @@ def _system_for(scene, surface, args_of, period_of, fixed, newton_tol, scale, ma
     pmap = _PeriodMap(scene=Scene(scene.vector_field, others), end_impacts=0, **kw)
     return _GrazingSystem(
         pmap=pmap, phi=scene.surfaces[surface].phi, args_of=args_of, period_of=period_of,
-        fixed_period=fixed, root_finder=optx.Newton(rtol=newton_tol, atol=newton_tol * scale),
+        fixed_period=fixed, root_finder=_newton_for(newton_tol, scale),
         max_steps=int(max_newton_steps),
     )
 

@@ -10,6 +10,7 @@ import it without reaching into another's private helpers.
 from __future__ import annotations
 
 import dataclasses
+import functools
 from typing import Any
 
 import equinox as eqx
@@ -60,6 +61,20 @@ def _state_scale(*arrays) -> float:
     values = [v for v in values if np.isfinite(v)]
     s = max(values) if values else 0.0
     return float(s) if s > 0 else 1.0
+
+
+def _newton_for(newton_tol, scale):
+    """Newton's method with the tolerances `newton_tol` (relative) and `newton_tol · scale`.
+
+    The tolerances are arrays: `eqx.filter_jit` traces arrays but treats Python floats as
+    static, and the absolute tolerance follows each orbit's size, so with floats every
+    orbit, continuation start and grazing point compiled its own Newton program (~7 s
+    each: six of them in one bifurcation notebook).
+    """
+    import optimistix as optx
+
+    return optx.Newton(rtol=jnp.asarray(newton_tol, float),
+                       atol=jnp.asarray(newton_tol, float) * scale)
 
 
 def _atol_for(orbit, rtol, atol) -> float:
@@ -122,7 +137,32 @@ class _PeriodMap(eqx.Module):
         return x_end, ok, sol
 
 
-@eqx.filter_jit
+def orbit_kernel(fn):
+    """`eqx.filter_jit(fn)`, compiled once per configuration whatever the callers pass.
+
+    `jit` keys its programs on weak types too, and the same time or state reached these
+    kernels weak-typed from one caller (`jnp.asarray(0.0)`, a Python float's result) and
+    strong from another: in one continuation `_linearize_all` and `_sampled` compiled
+    twice (~5 s each). Weak-typed arrays are made strong first (the orbit code works in
+    the float64 its inputs are converted to, so the promotion rules do not change).
+    """
+    jitted = eqx.filter_jit(fn)
+
+    @functools.wraps(fn)
+    def call(*args):
+        return jitted(*jax.tree.map(_strongly_typed, args))
+
+    call.jitted = jitted  # (tests count its compiled programs)
+    return call
+
+
+def _strongly_typed(leaf):
+    if isinstance(leaf, jax.Array) and jax.typeof(leaf).weak_type:
+        return lax.convert_element_type(leaf, leaf.dtype)
+    return leaf
+
+
+@orbit_kernel
 def _run(pmap: _PeriodMap, x0, t0, t1, args):
     return pmap.run(x0, t0, t1, args, pmap.max_impacts)
 
@@ -140,7 +180,7 @@ def _linearize(pmap: _PeriodMap, x, t0, T, args, args_dot=None):
     return x_end, jac_x, jac_T, ok, sol, jac_args
 
 
-@eqx.filter_jit
+@orbit_kernel
 def _linearize_all(pmap: _PeriodMap, x, t0, T, args, args_dot):
     x, T, args, args_dot = lax.stop_gradient((x, T, args, args_dot))
     n = x.shape[0]
@@ -156,7 +196,7 @@ def _linearize_all(pmap: _PeriodMap, x, t0, T, args, args_dot):
     return x_end, jac[:, :n], jac[:, n], jac[:, n + 1], ok, sol
 
 
-@eqx.filter_jit
+@orbit_kernel
 def _sampled(pmap: _PeriodMap, x0, t0, t1, args, ts):
     sol = simulate(
         pmap.scene, x0, t0, t1, args, solver=pmap.solver, rtol=pmap.rtol, atol=pmap.atol,

@@ -58,12 +58,14 @@ from ._orbit_common import (
     _a5,
     _atol_for,
     _linearize,
+    _newton_for,
     _PeriodMap,
     _run,
     _sampled,
     _solver_name,
     _state_at,
     _state_scale,
+    orbit_kernel,
 )
 from ._scene import Scene
 from ._status import Status
@@ -296,7 +298,7 @@ def _free_columns(n, j):
     return idx + (idx >= j)
 
 
-@eqx.filter_jit
+@orbit_kernel
 def _newton(pmap: _PeriodMap, fixed_period: bool, root_finder, max_steps: int, y0, t0,
             T_fixed, args, j, c):
     """Newton (`optx.root_find`) on the Poincaré criterion; differentiable in `args`."""
@@ -597,7 +599,7 @@ def find_periodic_orbit(
     pmap = dataclasses.replace(pmap, end_impacts=int(num_impacts) if start_at_impact else 0)
     user_root_finder = root_finder is not None
     if root_finder is None:
-        root_finder = optx.Newton(rtol=newton_tol, atol=newton_tol * scale)
+        root_finder = _newton_for(newton_tol, scale)
     requested = jnp.asarray(-1 if num_impacts is None else int(num_impacts))
     fixed_period = bool(fixed_period)
     t0 = jnp.asarray(t0, float)
@@ -708,7 +710,7 @@ def saltation(scene: Scene, surface_index: int, t, x_pre, args) -> Array:
     return saltation_matrix(scene, surface_index, t, x_pre, args).matrix
 
 
-@eqx.filter_jit
+@orbit_kernel
 def _flights_to_impact(pmap_impact: _PeriodMap, starts, t_starts, durations, nudges, args):
     """Time-fixed Jacobians Φ_i of the flights from each start to its next impact (vmapped).
 

@@ -131,6 +131,24 @@ def test_period_derivative_by_implicit_function_theorem():
     np.testing.assert_allclose(derivative, fd, rtol=1e-6)
 
 
+def test_orbits_of_other_sizes_share_one_compiled_newton():
+    """Newton's absolute tolerance follows each orbit's size (newton_tol · max |x|): it is
+    an input of the compiled solver, not part of it (a new program per orbit took ~30 s)."""
+    from grazejax._periodic import _newton
+
+    programs, newton_atols = [], []
+    for mu in (-0.2, -0.05):
+        x_exact, _ = psi_mu(mu)
+        orbit = find_periodic_orbit(EX1DOF, x_exact - np.array([0.02, 0.0]), 6.19,
+                                    ex.ex1dof_args(mu), fix=1, start_at_impact=False, **TOL)
+        assert OrbitStatus(int(orbit.status)) == OrbitStatus.SUCCESS, orbit.message
+        programs.append(_newton.jitted._cached._cache_size())
+        newton_atols.append(orbit.settings.newton_atol)
+    assert newton_atols[0] != newton_atols[1]
+    assert programs[1] == programs[0]
+
+
+
 # --------------------------------------------------------------------------------------
 # Forced impact oscillator: period-1 orbit against a closed form
 # --------------------------------------------------------------------------------------

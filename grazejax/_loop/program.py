@@ -21,7 +21,7 @@ from .detect import Detection, detect
 from .field import field_jumps
 from .land import land_if_due
 from .policies import as_zeno_policy, stick_at_start
-from .state import LoopState
+from .state import LoopState, seed_fixed_point
 from .step import Step, take_step
 
 
@@ -183,7 +183,7 @@ def init(ctx: LoopContext, x0, args) -> LoopState:
         jnp.all(jnp.isfinite(x0)) & _tree_all_finite(args) & jnp.isfinite(t0) & ~jnp.isnan(t1)
     )
     mask_shape = ctx.mask_shape
-    return LoopState(
+    state = LoopState(
         args=args, time_scale=time_scale, s=zero, t_hi=t0, t_lo=jnp.zeros_like(t0), y=x0,
         h=h0, solver_state=solver_state0, controller_state=controller_state0,
         # (sliding from t0 changes the field the solver's first stage was built with)
@@ -200,6 +200,7 @@ def init(ctx: LoopContext, x0, args) -> LoopState:
         done=~finite0 | (status0 != int(Status.SUCCESS)), t_final=t0, x_final=x0,
         save_index=save_index0, save_xs=save_xs0,
     )
+    return seed_fixed_point(state, x0, args)
 
 
 # --------------------------------------------------------------------------------------

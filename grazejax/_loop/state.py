@@ -78,6 +78,54 @@ def with_buffers(small: LoopState, full: LoopState) -> LoopState:
     return _set_fields(small, BUFFERS, (getattr(full, k) for k in BUFFERS))
 
 
+# The fields that carry a derivative of (x0, args) through the loop: the fixed point that
+# JAX's while-loop jvp rule finds (measured on ex1dof; `save_xs` with saveat). The rest
+# (step sizes, the controller, counters, flags) carries none: the step size is stopped
+# on purpose (see `init`).
+TANGENT_FIELDS = (
+    "s", "t_hi", "t_lo", "y", "solver_state", "flight_scale", "h_after", "log_t", "log_pre",
+    "log_post", "intervals", "zeno_time", "t_final", "x_final", "save_xs",
+)
+# Loop-invariant inputs and values fixed at t0: never batched or differentiated more than
+# `init` made them.
+_UNSEEDED = ("args", "time_scale")
+
+
+def seed_fixed_point(c: LoopState, x0, args) -> LoopState:
+    """`c` unchanged in value, but batched and differentiated as the loop will make it.
+
+    JAX's while loop finds which carries are batched (vmap) and which have tangents (jvp)
+    by a fixed point: it transforms the whole loop body, sees which outputs picked up a
+    batch axis or a tangent that the inputs lacked, and transforms it again — three times
+    here (tangents on 3 → 13 → 14 carries, batch axes on 9 → 35 → 36), and both rules
+    nest under jacfwd. Each pass re-traces a body of ~1000 equations: most of the
+    lowering time of `jacfwd(simulate)` and `vmap(simulate)`. Starting from the fixed
+    point makes the first pass the last. `where(False, anchor, value)` is `value`
+    exactly, XLA folds it, and it is batched (has a tangent) wherever the anchor is,
+    which depends on every input.
+    """
+    anchor = jnp.ravel(x0)[0]
+    for leaf in jax.tree.leaves(args):
+        if eqx.is_array(leaf) and leaf.size and jnp.issubdtype(leaf.dtype, jnp.inexact):
+            anchor = jnp.where(False, jnp.ravel(leaf)[0].astype(anchor.dtype), anchor)
+    frozen = jax.lax.stop_gradient(anchor)
+
+    def seed(value, differentiable):
+        if not eqx.is_array_like(value):
+            return value
+        value = jnp.asarray(value)  # (a Python scalar becomes the loop carry's array anyway)
+        inexact = jnp.issubdtype(value.dtype, jnp.inexact)
+        source = anchor if differentiable and inexact else frozen
+        return jnp.where(False, source.astype(value.dtype), value)
+
+    names = [k for k in c.__dataclass_fields__ if k not in _UNSEEDED]
+    values = [
+        jax.tree.map(lambda v, d=name in TANGENT_FIELDS: seed(v, d), getattr(c, name))
+        for name in names
+    ]
+    return _set_fields(c, names, values)
+
+
 def _without_log(c: LoopState) -> LoopState:
     return _set_fields(c, LOG, (None,) * len(LOG))
 
