@@ -247,3 +247,18 @@ def test_gradients_benchmark_smoke(tmp_path):
     for name in ("gradients_impacts.csv", "gradients_direct.csv", "gradients_many.csv"):
         assert (tmp_path / name).read_text().count("\n") >= 2, name
     assert (tmp_path / "gradients.md").read_text().startswith("Gradient benchmark (smoke)")
+
+
+# ---------------------------------------------------------------- bench_compile -------
+
+
+def test_compile_benchmark_smoke(tmp_path):
+    """benchmarks/bench_compile.py --smoke: simulate's compile time in a fresh process
+    without a compilation cache; the table and the JSON are written."""
+    bench_compile = _benchmark_module("bench_compile")
+    (row,) = bench_compile.main(["--smoke", "--out", str(tmp_path)])
+    assert row["case"] == "simulate" and row["first_s"] > row["second_s"] > 0
+    assert row["compile_s"] == pytest.approx(row["first_s"] - row["second_s"])
+    runs = json.loads((tmp_path / "compile.json").read_text())["runs"]
+    assert [r["case"] for r in runs] == ["simulate"]
+    assert "| `simulate` |" in (tmp_path / "compile.md").read_text()
