@@ -79,6 +79,13 @@ def dip_start(delta, a, v0):
     return x0, t_hit, -disc
 
 
+def scipy_field(scene, args):
+    """The scene's vector field as SciPy calls it: `f(t, x)` on NumPy arrays, jitted once
+    (scipy calls it ~10^5 times per reference; op-by-op dispatch took minutes)."""
+    field = jax.jit(lambda t, x: scene.vector_field(t, x, args))
+    return lambda t, x: np.asarray(field(t, np.asarray(x, float)), float)
+
+
 def scipy_reference(scene, x0, t0, t1, args, *, max_impacts, rtol=1e-13, atol=1e-13, max_step=0.01):
     """An independent impact loop: scipy DOP853 with terminal events and restarts.
 
@@ -89,12 +96,10 @@ def scipy_reference(scene, x0, t0, t1, args, *, max_impacts, rtol=1e-13, atol=1e
     event is replaced by the event "ġ crosses 0 upwards" until then.
     Returns (impact times, pre-states, post-states, final state).
     """
-    # The scene's functions jitted once: scipy calls them ~10^5 times per reference, and
-    # op-by-op dispatch made one reference take minutes.
-    field = jax.jit(lambda t, x: scene.vector_field(t, x, args))
+    # The scene's functions jitted once (see `scipy_field`).
     phis = [jax.jit(lambda t, x, s=s: s.phi(t, x, args)) for s in scene.surfaces]
     grads = [jax.jit(jax.grad(lambda x, t, s=s: s.phi(t, x, args))) for s in scene.surfaces]
-    f = lambda t, x: np.asarray(field(t, np.asarray(x, float)), float)
+    f = scipy_field(scene, args)
     times, pres, posts = [], [], []
     t, x = float(t0), np.asarray(x0, float)
     blocked = set()

@@ -148,7 +148,6 @@ def test_orbits_of_other_sizes_share_one_compiled_newton():
     assert programs[1] == programs[0]
 
 
-
 # --------------------------------------------------------------------------------------
 # Forced impact oscillator: period-1 orbit against a closed form
 # --------------------------------------------------------------------------------------

@@ -10,7 +10,6 @@ there we only use depths far above the tolerance (20x the measured radius error)
 import math
 from fractions import Fraction
 
-import jax
 import mpmath
 import numpy as np
 import pytest
@@ -20,6 +19,7 @@ from scipy.integrate import solve_ivp
 
 import grazejax as gj
 
+from ..helpers import scipy_field
 from ._common import EPS, EX1DOF, FLOOR_ULPS, f64, f64_args, record, runner, status
 
 SWEEP = settings(max_examples=25, deadline=None, derandomize=True)
@@ -261,8 +261,7 @@ def test_ex1dof_jump_into_gamma_flight_by_flight(mu, rho, theta):
     times = np.asarray(sol.impact_times[:k])
     assert post[0, 1] < -0.1  # J maps Γ into Γ: the next flight starts into the wall
     assert np.all(np.diff(times) > 5.0)  # one impact per turn (~2π): no re-trigger
-    field = jax.jit(lambda t, x: EX1DOF.vector_field(t, x, args))  # (one dispatch per call)
-    f = lambda t, x: np.asarray(field(t, x))  # noqa: E731
+    f = scipy_field(EX1DOF, args)
     cross = lambda t, x: x[0]  # noqa: E731
     cross.direction = -1
     worst = 0.0
