@@ -6,11 +6,14 @@ diffrax locates events with an unbracketed Newton iteration started at the step'
 look for is already bracketed by a sign change inside one step, so we keep the bracket and
 take fast steps inside it.
 
-Two methods (`method=`, or `search_method` around tracing for side-by-side benchmarks):
+Three methods (`method=`, or `search_method` around tracing for side-by-side benchmarks):
 
-- `"itp"`, the default (Oliveira & Takahashi, ACM TOMS 47(1), 2020): regula falsi,
-  truncated towards the midpoint and projected into a shrinking ball around it; never
-  more than one iteration more than bisection.
+- `"chandrupatla"`, the default (T. R. Chandrupatla, 1997): inverse quadratic
+  interpolation where it is well behaved, else bisection, with steps that close the
+  bracket from both sides; guarded to at most bisection's count plus a few iterations.
+- `"itp"` (Oliveira & Takahashi, ACM TOMS 47(1), 2020): regula falsi, truncated towards
+  the midpoint and projected into a shrinking ball around it; never more than one
+  iteration more than bisection.
 - `"newton"`: a safeguarded Newton iteration (Numerical Recipes' `rtsafe`, plus a
   bracket-closing phase). The slope comes with the value from one `jax.jvp` of the
   interpolated gap; the first point is regula falsi; a Newton point outside the bracket,
@@ -18,14 +21,17 @@ Two methods (`method=`, or `search_method` around tracing for side-by-side bench
   the Newton step is down to the gap's rounding, points at least one ulp inwards close
   the bracket onto adjacent floats.
 
-Why ITP stays the default (grazejax issue 14, `benchmarks/bench_roots.py`): in single
-runs Newton takes fewer iterations per call (mean / max, ITP → Newton: transversal
-7.8 / 9 → 4.2 / 5, near grazing 12.3 / 19 → 5.2 / 6, Zeno 11.3 / 25 → 7.5 / 10), but a
-sweep pays, per call, the slowest lane's count times every lane's cost of one iteration:
-over a random-phase ex1dof sweep (Dopri8, 1e-8) the per-lane mean was 9.8 vs 9.2, with a
-longer tail for Newton (max 38 against 21: near-grazing crossings converge linearly, like a
-double root), and an iteration with a jvp costs more. Measured side by side, 256 lanes:
-random phases 391 vs 641 µs per trajectory (ITP vs Newton), in phase within noise.
+Why Chandrupatla (grazejax issue 14, `benchmarks/bench_roots.py`): a sweep pays, per
+search, the slowest lane's iteration count times every lane's cost of one iteration, so
+both the count and the cost of an iteration matter. ITP shrinks the bracket from one side
+and only closes it by its bisection guarantee (iterations per call in single runs, mean /
+max: transversal 7.8 / 9, near grazing 9.9 / 13, Zeno 11.3 / 25); Newton takes fewer
+(4.2 / 5, 5.2 / 6, 7.5 / 10) but pays a jvp per iteration and had a longer tail over a
+random-phase sweep (max 38 against ITP's 21: near-grazing crossings converge linearly,
+like a double root), so it lost to ITP there (391 vs 641 µs per trajectory). Chandrupatla
+takes Newton's counts (4.8 / 6, 5.8 / 7, 5.9 / 11) at the cost of an ITP iteration: a
+2048-lane ex1dof sweep (Dopri8) went from 127 to 103 µs per trajectory in phase and from
+176 to 128 with random phases at rtol 1e-10 (189 → 162 and 276 → 205 at 1e-12).
 """
 
 import contextlib
@@ -34,13 +40,13 @@ import jax
 import jax.lax as lax
 import jax.numpy as jnp
 
-_METHODS = ("newton", "itp")
-_default_method = "itp"
+_METHODS = ("newton", "itp", "chandrupatla")
+_default_method = "chandrupatla"
 
 
 @contextlib.contextmanager
 def search_method(method: str):
-    """Trace the loop's root searches with `method` (`"newton"` or `"itp"`) inside this
+    """Trace the loop's root searches with `method` (one of `_METHODS`) inside this
     block: for side-by-side benchmarks only (the choice is made at trace time)."""
     global _default_method
     if method not in _METHODS:
@@ -61,9 +67,10 @@ def bracketed_root(
     Returns `(lo, hi)` with `fn(lo) > 0 >= fn(hi)` and `hi - lo` at most `rel_width` times
     the initial bracket, or a few ulps (the default; adjacent floats with `"newton"`).
     `hi` is the first point at or past the sign change. The result carries no
-    derivative: callers apply one Newton step outside (the implicit function theorem) when they need tangents. `count=True` also
-    returns the number of iterations (for tests and profiles). `method` is `"itp"` (the
-    default, see the module docstring) or `"newton"`.
+    derivative: callers apply one Newton step outside (the implicit function theorem) when
+    they need tangents. `count=True` also returns the number of iterations (for tests and
+    profiles). `method` is `"chandrupatla"` (the default, see the module docstring),
+    `"itp"` or `"newton"`.
 
     Why to machine precision by default: the landing step's Newton correction leaves an
     error e²·|g''|/(2|g'|) for a proposal error e, which is not small near grazing or in a
@@ -88,6 +95,8 @@ def bracketed_root(
         out = _newton(fn, lo, hi, f_lo, f_hi, rel_width * (hi - lo), target, max_iter)
     elif method == "itp":
         out = _itp(fn, lo, hi, f_lo, f_hi, target, max_iter)
+    elif method == "chandrupatla":
+        out = _chandrupatla(fn, lo, hi, f_lo, f_hi, target, max_iter)
     else:
         raise ValueError(f"method must be one of {_METHODS}, got {method!r}")
     lo, hi, iterations = out
@@ -194,6 +203,86 @@ def _itp(fn, lo, hi, f_lo, f_hi, target, max_iter):
 
     init = (lo, hi, f_lo, f_hi, jnp.zeros_like(lo))
     lo, hi, _, _, iterations = lax.while_loop(not_done, body, init)
+    return lo, hi, iterations
+
+
+# Chandrupatla's worst case over bisection's (its projection into ITP's ball): at most
+# bisection's count plus this many iterations, and one more where rounding in the ball's
+# radius leaves the bracket an ulp too wide (≤ 51 + 6 + 1 < max_iter = 60 in double).
+_CHANDRUPATLA_SLACK = 6
+
+
+def _chandrupatla(fn, lo, hi, f_lo, f_hi, target, max_iter):
+    """Chandrupatla's method: `(lo, hi, iterations)`.
+
+    T. R. Chandrupatla, Adv. Eng. Software 28(3), 1997 (the method of SciPy's
+    `scipy.optimize.elementwise.find_root`): inverse quadratic interpolation through the
+    newest point, the other end of the bracket and the point the newest one replaced,
+    taken where it is well behaved (Chandrupatla's test on ξ and Φ), else bisection; every
+    point at least half the target width inside the bracket, so that once one end has
+    converged the next point lands just past the root and closes the bracket from the
+    other side (regula falsi, and ITP built on it, keep the far end fixed and shrink the
+    bracket by bisection: 54 iterations for exp(−5s) − 0.01 on [0, 2]).
+
+    Two guards: a bracket that has not halved over three iterations is bisected (slow
+    one-sided progress near a double root, i.e. near grazing), and every point is
+    projected into ITP's ball around the midpoint with `_CHANDRUPATLA_SLACK` iterations of slack, so
+    that no search takes more than bisection's count plus `_CHANDRUPATLA_SLACK`, whatever the function.
+    """
+    half_target = 0.5 * target
+    n_half = jnp.ceil(jnp.log2(jnp.maximum((hi - lo) / target, 1.0)))
+    n_max = jnp.minimum(n_half + _CHANDRUPATLA_SLACK, 1000.0)
+
+    def not_done(carry):
+        lo, hi, f_lo, f_hi = carry[:4]
+        it = carry[-1]
+        return (it < max_iter) & (hi - lo > target) & (f_hi != 0)
+
+    def body(carry):
+        lo, hi, f_lo, f_hi, a, f_a, c, f_c, widths, it = carry
+        # widths: the bracket's width after each of the last three iterations, oldest first
+        # a: the newest point (one end of the bracket); b: the other end; c: the point
+        # a replaced (on a's side, or b's old value), for the interpolation.
+        a_is_lo = a == lo
+        b, f_b = jnp.where(a_is_lo, hi, lo), jnp.where(a_is_lo, f_hi, f_lo)
+        width = hi - lo
+        xi = (a - b) / jnp.where(c != b, c - b, 1.0)
+        phi = (f_a - f_b) / jnp.where(f_c != f_b, f_c - f_b, 1.0)
+        interpolate = (it > 0) & (phi * phi < xi) & ((1 - phi) * (1 - phi) < 1 - xi)
+        t_iqi = (f_a / (f_b - f_a)) * (f_c / (f_b - f_c)) + ((c - a) / (b - a)) * (
+            f_a / (f_c - f_a)
+        ) * (f_b / (f_c - f_b))
+        # First point: regula falsi from the two end values.
+        t_falsi = f_a / (f_a - f_b)
+        t = jnp.where(it == 0, t_falsi, jnp.where(interpolate, t_iqi, 0.5))
+        stalled = (hi - lo) > 0.5 * widths[0]
+        t = jnp.where(jnp.isfinite(t) & ~stalled, t, 0.5)
+        t_lim = half_target / width
+        t = jnp.clip(t, t_lim, 1 - t_lim)
+        x = a + t * (b - a)
+        # ITP's projection: the bracket after this iteration is at most
+        # target · 2^(n_max − it − 1) wide, whatever the function.
+        middle = 0.5 * (lo + hi)
+        radius = half_target * jnp.exp2(n_max - it) - 0.5 * width
+        x = jnp.clip(x, middle - radius, middle + radius)
+        x = jnp.where((x > lo) & (x < hi), x, middle)
+        f_x = fn(x)
+        positive = f_x > 0
+        # The point replaced by x (kept for the interpolation): a if x is on a's side,
+        # else b (and a becomes the far end).
+        same_side = positive == (f_a > 0)
+        c, f_c = jnp.where(same_side, a, b), jnp.where(same_side, f_a, f_b)
+        lo, f_lo = jnp.where(positive, x, lo), jnp.where(positive, f_x, f_lo)
+        hi, f_hi = jnp.where(positive, hi, x), jnp.where(positive, f_hi, f_x)
+        widths = (widths[1], widths[2], width)
+        return lo, hi, f_lo, f_hi, x, f_x, c, f_c, widths, it + 1
+
+    # (The first point is regula falsi from a = lo, b = hi; c is not read before it is
+    # set. The widths start at infinity: no bisection is forced in the first three.)
+    inf = jnp.full_like(lo, jnp.inf)
+    widths = (inf, inf, inf)
+    init = (lo, hi, f_lo, f_hi, lo, f_lo, hi, f_hi, widths, jnp.zeros_like(lo))
+    lo, hi, *_, iterations = lax.while_loop(not_done, body, init)
     return lo, hi, iterations
 
 
