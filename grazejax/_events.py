@@ -27,6 +27,9 @@ import jax.numpy as jnp
 
 from ._roots import bracketed_root, safe_divide
 
+# Where a restart step that leaves Φ = 0 tangentially is judged (see `step_ends`).
+LIFT_FRACTION = 2.0**-20
+
 
 class StepEnds(NamedTuple):
     """Guarded gap values and slopes of one surface at the two ends of a step."""
@@ -56,8 +59,12 @@ def guarded(g, sa, restart):
     return G
 
 
-def step_ends(g, sa, sb, restart, g_a, g_b) -> StepEnds:
+def step_ends(rate, sa, sb, restart, g_a, g_b) -> StepEnds:
     """Gap values and slopes at the step's ends.
+
+    `rate(θ)` is `(g, ġ)` at the fraction θ of the step (a Python float: 0, 1 or the
+    lift-off point), along the step's interpolant (`_loop/detect.py`: evaluated at a
+    constant fraction, the interpolant's weights are constants).
 
     `g_a`, `g_b` are the gap at the solver's own states y(sa), y(sb), not at the
     interpolant: the interpolant reproduces its end states only to round-off, and a
@@ -72,15 +79,18 @@ def step_ends(g, sa, sb, restart, g_a, g_b) -> StepEnds:
     −1 ulp although the flight rises (ġ > 0 just after sa) — and a return through Φ = 0 within the same
     step was missed: the ball fell through the table with SUCCESS (found by the
     chatter–stick–release campaign at e = 0, Aω² = 1.25 g, ω = 8). Such a step is judged
-    at s_lift = sa + 2⁻²⁰(sb − sa) instead, where G ≈ ġ + g̈·(s − sa)/2 has left the
-    round-off, and the crossing is searched in [s_lift, sb]: the flight does not re-trigger
+    at s_lift = sa + 2⁻²⁰(sb − sa) (`LIFT_FRACTION`) instead, where G ≈ ġ + g̈·(s − sa)/2
+    has left the round-off, and the crossing is searched in [s_lift, sb]: the flight does not re-trigger
     at sa, and a hop shorter than 2⁻²⁰ of the step is a touch (its depth is below the floor).
     """
-    slope_a = jax.jvp(g, (sa,), (jnp.ones_like(sa),))[1]
-    slope_b = jax.jvp(g, (sb,), (jnp.ones_like(sb),))[1]
-    s_lift = sa + (sb - sa) * 2.0**-20
-    g_lift = guarded(g, sa, restart)(s_lift)
-    rising = jax.jvp(g, (s_lift,), (jnp.ones_like(s_lift),))[1] > 0
+    _, slope_a = rate(0.0)
+    _, slope_b = rate(1.0)
+    s_lift = sa + (sb - sa) * LIFT_FRACTION
+    g_at_lift, slope_lift = rate(LIFT_FRACTION)
+    lifted = s_lift - sa
+    # (guarded(g, sa, restart)(s_lift), from g's value there)
+    g_lift = jnp.where(restart, safe_divide(g_at_lift, lifted, lifted > 0), g_at_lift)
+    rising = slope_lift > 0
     lifting = restart & (slope_a <= 0) & rising & (g_lift > 0) & (s_lift > sa)
     g_start = jnp.where(restart, jnp.where(lifting, g_lift, slope_a), g_a)
     # A lift-off rises from sa: no interior minimum of g is looked for from there (a
