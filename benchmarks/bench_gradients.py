@@ -335,9 +335,16 @@ def main(argv=None):
     parser.add_argument(
         "--out", default=os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
     )
+    parser.add_argument(
+        "--many-only", type=int, nargs="+", metavar="HARMONICS",
+        help="only the many-parameter section, at these numbers of harmonics (2 parameters "
+        "each): writes gradients_many_sizes.json/.csv",
+    )
     ns = parser.parse_args(argv)
     quick = ns.quick or ns.smoke
     os.makedirs(ns.out, exist_ok=True)
+    if ns.many_only:
+        return _many_only(ns.many_only, ns.out)
     checkpoints = (None,) if ns.smoke else (30, None) if quick else (10, 30, 100, None, 1000, 4000)
     budget, repeats = (0.0, 1) if ns.smoke else (1.0, 3) if quick else (3.0, 7)
     sizes = (10,) if ns.smoke else (10, 100, 1000)
@@ -374,6 +381,24 @@ def main(argv=None):
         f.write(table)
     print(table)
     log(f"done in {data['wall_s']:.0f} s; results in {ns.out}")
+    return 0
+
+
+def _many_only(harmonics, out):
+    """Reverse vs forward mode as the number of parameters grows (20 impact times)."""
+    rows = [section_many(h, 20, 20.0, 5) for h in harmonics]
+    with open(os.path.join(out, "gradients_many_sizes.json"), "w") as f:
+        json.dump({"many": rows, "machine": machine(), "versions": versions(),
+                   "note": SHARED_MACHINE_NOTE}, f, indent=1)
+    _write_csv(os.path.join(out, "gradients_many_sizes.csv"), rows)
+    print("| parameters | primal | grad RCA / primal | grad Direct / primal | jacfwd / primal "
+          "| forward / reverse (RCA, Direct) | grads vs jacfwd |")
+    print("|---|---|---|---|---|---|---|")
+    for r in rows:
+        print(f"| {r['parameters']} | {r['primal_min_s'] * 1e3:.1f} ms | "
+              f"{r['grad_over_primal']:.1f}× | {r['direct_over_primal']:.1f}× | "
+              f"{r['jacfwd_over_primal']:.1f}× | {r['forward_over_reverse']:.1f}×, "
+              f"{r['forward_over_direct']:.1f}× | {r['grad_vs_jacfwd_rel']:.1e} |")
     return 0
 
 
