@@ -118,8 +118,9 @@ def _at_fraction(interp):
     dot per evaluation, three evaluations per surface and step: an ex1dof sweep (Dopri8
     1e-12, 2048 lanes) went from 214 to 148 µs per trajectory in phase and from 283 to
     171 at random phases (grazejax issue 14). Mathematically the same values
-    (P'(s) = dP/dθ / (sb − sa)); the rounding differs by ulps. Interpolations from outside Diffrax are evaluated as before (their
-    `evaluate` might not rescale by their ends).
+    (P'(s) = dP/dθ / (sb − sa)); the rounding differs by ulps. Interpolations from
+    outside Diffrax are evaluated as before (their `evaluate` might not rescale by their
+    ends).
     """
     if not type(interp).__module__.startswith("diffrax."):
 
