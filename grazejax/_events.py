@@ -80,8 +80,9 @@ def step_ends(rate, sa, sb, restart, g_a, g_b) -> StepEnds:
     step was missed: the ball fell through the table with SUCCESS (found by the
     chatter–stick–release campaign at e = 0, Aω² = 1.25 g, ω = 8). Such a step is judged
     at s_lift = sa + 2⁻²⁰(sb − sa) (`LIFT_FRACTION`) instead, where G ≈ ġ + g̈·(s − sa)/2
-    has left the round-off, and the crossing is searched in [s_lift, sb]: the flight does not re-trigger
-    at sa, and a hop shorter than 2⁻²⁰ of the step is a touch (its depth is below the floor).
+    has left the round-off, and the crossing is searched in [s_lift, sb]: the flight does
+    not re-trigger at sa, and a hop shorter than 2⁻²⁰ of the step is a touch (its depth is
+    below the floor).
     """
     _, slope_a = rate(0.0)
     _, slope_b = rate(1.0)

@@ -148,9 +148,7 @@ def _newton(fn, lo, hi, f_lo, f_hi, width, converged, max_iter):
         )
         guess = jnp.where(jnp.isfinite(guess) & (guess > lo) & (guess < hi), guess, middle)
         f_guess, slope_guess = value_and_slope(guess)
-        positive = f_guess > 0
-        lo, f_lo = jnp.where(positive, guess, lo), jnp.where(positive, f_guess, f_lo)
-        hi, f_hi = jnp.where(positive, hi, guess), jnp.where(positive, f_hi, f_guess)
+        lo, hi, f_lo, f_hi = _with_point(lo, hi, f_lo, f_hi, guess, f_guess)
         # (A closing step does not count as a step: if rounding in fn kept it from
         # crossing, the next one is again a Newton or closing step, not a bisection.)
         step_before = jnp.where(closing, step_before, step_last)
@@ -172,12 +170,11 @@ def _itp(fn, lo, hi, f_lo, f_hi, target, max_iter):
     # over bisection's count n_half).
     width0 = hi - lo
     kappa1 = 0.1 / jnp.where(width0 > 0, width0, 1.0)
-    n_half = jnp.ceil(jnp.log2(jnp.maximum(width0 / target, 1.0)))
-    n_max = jnp.minimum(n_half + 1, 1000.0)
+    n_max = _ball_budget(lo, hi, target, 1)
 
     def not_done(carry):
-        lo, hi, f_lo, f_hi, it = carry
-        return (it < max_iter) & (hi - lo > target) & (f_hi != 0)
+        lo, hi, _, f_hi, it = carry
+        return _still_open(lo, hi, f_hi, it, target, max_iter)
 
     def body(carry):
         lo, hi, f_lo, f_hi, it = carry
@@ -192,13 +189,10 @@ def _itp(fn, lo, hi, f_lo, f_hi, target, max_iter):
         delta = kappa1 * width * width
         truncated = jnp.where(delta <= jnp.abs(middle - falsi), falsi + towards * delta, middle)
         # Project into the ball around the middle that keeps the bisection guarantee.
-        radius = half_target * jnp.exp2(n_max - it) - 0.5 * width
+        radius = _ball_radius(half_target, n_max, it, width)
         mid = jnp.where(jnp.abs(truncated - middle) <= radius, truncated, middle - towards * radius)
         mid = jnp.where((mid > lo) & (mid < hi), mid, middle)
-        f_mid = fn(mid)
-        positive = f_mid > 0
-        lo, f_lo = jnp.where(positive, mid, lo), jnp.where(positive, f_mid, f_lo)
-        hi, f_hi = jnp.where(positive, hi, mid), jnp.where(positive, f_hi, f_mid)
+        lo, hi, f_lo, f_hi = _with_point(lo, hi, f_lo, f_hi, mid, fn(mid))
         return lo, hi, f_lo, f_hi, it + 1
 
     init = (lo, hi, f_lo, f_hi, jnp.zeros_like(lo))
@@ -226,17 +220,16 @@ def _chandrupatla(fn, lo, hi, f_lo, f_hi, target, max_iter):
 
     Two guards: a bracket that has not halved over three iterations is bisected (slow
     one-sided progress near a double root, i.e. near grazing), and every point is
-    projected into ITP's ball around the midpoint with `_CHANDRUPATLA_SLACK` iterations of slack, so
-    that no search takes more than bisection's count plus `_CHANDRUPATLA_SLACK`, whatever the function.
+    projected into ITP's ball around the midpoint with `_CHANDRUPATLA_SLACK` iterations of
+    slack, so that no search takes more than bisection's count plus that, whatever the
+    function.
     """
     half_target = 0.5 * target
-    n_half = jnp.ceil(jnp.log2(jnp.maximum((hi - lo) / target, 1.0)))
-    n_max = jnp.minimum(n_half + _CHANDRUPATLA_SLACK, 1000.0)
+    n_max = _ball_budget(lo, hi, target, _CHANDRUPATLA_SLACK)
 
     def not_done(carry):
-        lo, hi, f_lo, f_hi = carry[:4]
-        it = carry[-1]
-        return (it < max_iter) & (hi - lo > target) & (f_hi != 0)
+        lo, hi, _, f_hi = carry[:4]
+        return _still_open(lo, hi, f_hi, carry[-1], target, max_iter)
 
     def body(carry):
         lo, hi, f_lo, f_hi, a, f_a, c, f_c, widths, it = carry
@@ -255,7 +248,7 @@ def _chandrupatla(fn, lo, hi, f_lo, f_hi, target, max_iter):
         # First point: regula falsi from the two end values.
         t_falsi = f_a / (f_a - f_b)
         t = jnp.where(it == 0, t_falsi, jnp.where(interpolate, t_iqi, 0.5))
-        stalled = (hi - lo) > 0.5 * widths[0]
+        stalled = width > 0.5 * widths[0]
         t = jnp.where(jnp.isfinite(t) & ~stalled, t, 0.5)
         t_lim = half_target / width
         t = jnp.clip(t, t_lim, 1 - t_lim)
@@ -263,17 +256,15 @@ def _chandrupatla(fn, lo, hi, f_lo, f_hi, target, max_iter):
         # ITP's projection: the bracket after this iteration is at most
         # target · 2^(n_max − it − 1) wide, whatever the function.
         middle = 0.5 * (lo + hi)
-        radius = half_target * jnp.exp2(n_max - it) - 0.5 * width
+        radius = _ball_radius(half_target, n_max, it, width)
         x = jnp.clip(x, middle - radius, middle + radius)
         x = jnp.where((x > lo) & (x < hi), x, middle)
         f_x = fn(x)
-        positive = f_x > 0
         # The point replaced by x (kept for the interpolation): a if x is on a's side,
         # else b (and a becomes the far end).
-        same_side = positive == (f_a > 0)
+        same_side = (f_x > 0) == (f_a > 0)
         c, f_c = jnp.where(same_side, a, b), jnp.where(same_side, f_a, f_b)
-        lo, f_lo = jnp.where(positive, x, lo), jnp.where(positive, f_x, f_lo)
-        hi, f_hi = jnp.where(positive, hi, x), jnp.where(positive, f_hi, f_x)
+        lo, hi, f_lo, f_hi = _with_point(lo, hi, f_lo, f_hi, x, f_x)
         widths = (widths[1], widths[2], width)
         return lo, hi, f_lo, f_hi, x, f_x, c, f_c, widths, it + 1
 
@@ -284,6 +275,33 @@ def _chandrupatla(fn, lo, hi, f_lo, f_hi, target, max_iter):
     init = (lo, hi, f_lo, f_hi, lo, f_lo, hi, f_hi, widths, jnp.zeros_like(lo))
     lo, hi, *_, iterations = lax.while_loop(not_done, body, init)
     return lo, hi, iterations
+
+
+def _still_open(lo, hi, f_hi, it, target, max_iter):
+    """Whether a search goes on: iterations left, the bracket wider than the target and
+    its upper end not an exact root."""
+    return (it < max_iter) & (hi - lo > target) & (f_hi != 0)
+
+
+def _with_point(lo, hi, f_lo, f_hi, x, f_x):
+    """`(lo, hi, f_lo, f_hi)` with x in place of the end on its side of the sign change."""
+    positive = f_x > 0
+    return (
+        jnp.where(positive, x, lo), jnp.where(positive, hi, x),
+        jnp.where(positive, f_x, f_lo), jnp.where(positive, f_hi, f_x),
+    )
+
+
+def _ball_budget(lo, hi, target, slack):
+    """ITP's n_max: bisection's iteration count from [lo, hi] to `target`, plus `slack`."""
+    n_half = jnp.ceil(jnp.log2(jnp.maximum((hi - lo) / target, 1.0)))
+    return jnp.minimum(n_half + slack, 1000.0)
+
+
+def _ball_radius(half_target, n_max, it, width):
+    """ITP's ball around the midpoint at iteration `it`: a point inside it leaves the
+    bracket at most target · 2^(n_max − it − 1) wide."""
+    return half_target * jnp.exp2(n_max - it) - 0.5 * width
 
 
 def safe_divide(num, den, ok):

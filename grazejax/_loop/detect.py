@@ -92,17 +92,14 @@ def _step_ends(ctx: LoopContext, c: LoopState, step: Step):
         row = []
         for sign in piece.signs:
 
-            def rate(theta, piece=piece, sign=sign):
+            def gap(s, y, piece=piece, sign=sign):
+                return sign * piece.gap(ctx.abs_time(s, c.t_hi, c.t_lo), y, args_)
+
+            def rate(theta, gap=gap):
                 s, y, dy_ds = along(theta, sa, sb)
-
-                def gap(s_, y_):
-                    return sign * piece.gap(ctx.abs_time(s_, c.t_hi, c.t_lo), y_, args_)
-
                 return jax.jvp(gap, (s, y), (jnp.ones_like(s), dy_ds))
 
-            g_a = sign * piece.gap(ctx.abs_time(sa, c.t_hi, c.t_lo), c.y, args_)
-            g_b = sign * piece.gap(ctx.abs_time(sb, c.t_hi, c.t_lo), y1, args_)
-            row.append(step_ends(rate, sa, sb, c.restart[i], g_a, g_b))
+            row.append(step_ends(rate, sa, sb, c.restart[i], gap(sa, c.y), gap(sb, y1)))
         ends.append(row)
     return ends
 
