@@ -28,6 +28,7 @@ Design (and why it is not a loop of `diffeqsolve` calls with a `diffrax.Event`):
 """
 
 import functools
+import math
 
 import diffrax
 import equinox as eqx
@@ -40,7 +41,7 @@ import numpy as np
 from ._adjoint import REVERSE_HINT, loop_kinds
 from ._loop.policies import AbstractZenoPolicy
 from ._loop.program import Program, build_program
-from ._loop.state import packing
+from ._loop.state import LOG, flush_log, has_staged_rows, packing, stage_log
 from ._scene import Scene
 from ._solution import ACCEPTED, FIELD_FIX, SimulationError, Solution, failure_message
 from ._status import Status
@@ -202,7 +203,7 @@ def run_loop(cond, program: "Program", init, adjoint, max_steps: int):
     """`while cond: step`, as the loop kind that `adjoint` asks for (see `_adjoint`)."""
     kinds = loop_kinds(adjoint)
     if kinds.outer == "lax":
-        final = lax.while_loop(cond, program.step, init)
+        final = _staged_log_loop(cond, program, init)
         # Name the fix if someone asks for reverse mode (the bare error names lax.while_loop).
         return _mark_forward_only(final)
     if kinds.outer == "checkpointed":
@@ -221,6 +222,64 @@ def run_loop(cond, program: "Program", init, adjoint, max_steps: int):
         cond, program.step, init, max_steps=max_steps + 1, kind=kinds.outer,
         checkpoints=kinds.checkpoints,
     )
+
+
+def _under_vmap(tree) -> bool:
+    """Whether `tree` holds values batched by an enclosing `jax.vmap` (seen through `jvp`).
+
+    Reads JAX's tracer classes from `jax._src` (no public API says whether a value is
+    batched); if they move, this answers False and the run takes the staged loop, which is
+    correct under vmap, only slower."""
+    try:
+        from jax._src.interpreters.ad import JVPTracer
+        from jax._src.interpreters.batching import BatchTracer
+    except ImportError:  # pragma: no cover
+        return False
+    for leaf in jax.tree.leaves(tree):
+        while isinstance(leaf, jax.core.Tracer):
+            if isinstance(leaf, BatchTracer):
+                if getattr(leaf, "batch_dim", None) is not None:
+                    return True
+                leaf = leaf.val
+            elif isinstance(leaf, JVPTracer):
+                leaf = leaf.primal
+            else:
+                break
+    return False
+
+
+# XLA:CPU's `ThunkExecutor::Options::execute_sequential_buffer_threshold` (see `stage_log`).
+_SEQUENTIAL_BUFFER_BYTES = 512
+
+
+def _staged_log_loop(cond, program: "Program", init):
+    """`while cond: step`, with the impact log written outside the loop that steps.
+
+    The inner loop steps with a staging log of one landing's rows and stops when a lane has
+    staged one; the outer loop moves those rows to the full log and resumes. At batch 1
+    the inner body then touches no buffer over XLA:CPU's 512-byte threshold for running
+    its kernels in sequence (see `stage_log`); the outer body runs once per impact.
+
+    Only where it gains (measured on ex1dof, t ∈ [0, 60], 9 impacts): a single run or its
+    `jacfwd` with a 100-row log took 0.59-0.65× the time of the plain loop, an unused log
+    0.96-1.03× (XLA drops it either way). Not under `vmap`: every iteration there already
+    touches large buffers, and the outer loop would stop whenever any lane impacts (a
+    64-lane vmap took 1.26×). A small log (≤ 512 bytes) needs none of it.
+    """
+    rows = program.log_rows_per_landing
+    log = (getattr(init, k) for k in LOG)
+    log_bytes = max(math.prod(jnp.shape(b)) * jnp.result_type(b).itemsize for b in log)
+    if rows == 0 or log_bytes <= _SEQUENTIAL_BUFFER_BYTES or _under_vmap(init):
+        return lax.while_loop(cond, program.step, init)
+
+    def steps_until_a_row(c):
+        staged, full_log = stage_log(c, rows)
+        staged = lax.while_loop(
+            lambda z: cond(z) & ~eqxi.unvmap_any(has_staged_rows(z)), program.step, staged
+        )
+        return flush_log(staged, full_log)
+
+    return lax.while_loop(cond, steps_until_a_row, init)
 
 
 def _mark_forward_only(tree):

@@ -64,6 +64,12 @@ class LoopContext(eqx.Module):
         return diffrax.ODETerm(loop_field(self.vector_field, self.pieces, self.sigma, False))
 
     @property
+    def log_rows_per_landing(self) -> int:
+        """Impact-log rows one landing can write: one per (surface, side), and the start or
+        end of sliding."""
+        return sum(len(p.signs) for p in self.pieces) + int(self.sticky)
+
+    @property
     def mask_shape(self) -> tuple[int, int]:
         return (self.m, self.max_signs)
 

@@ -14,7 +14,7 @@ from .compact import per_lane
 from .context import LoopContext
 from .field import field_jumps
 from .policies import keep_sliding, start_or_end_sliding, zeno_test
-from .state import LoopState, dd_add, with_buffers, without_buffers, write_log
+from .state import LoopState, dd_add, log_row_offset, with_buffers, without_buffers, write_log
 from .step import Step
 
 
@@ -47,10 +47,11 @@ def land_if_due(ctx: LoopContext, c: LoopState, step: Step):
             eqxi.unvmap_any(lands), land, no_land, operands
         )
     log = (c.log_t, c.log_pre, c.log_post, c.log_surface, c.log_kind)
+    row = c.num_impacts + log_row_offset(c)
     count = jnp.array(0)
     for slot in range(rows[0].shape[0]):
         apply, pre, post, surface, kind = (r[slot] for r in rows)
-        log = write_log(log, c.num_impacts + count, apply, t_event, pre, post, surface, kind)
+        log = write_log(log, row + count, apply, t_event, pre, post, surface, kind)
         count = count + apply
     landed = eqx.tree_at(
         lambda z: (z.log_t, z.log_pre, z.log_post, z.log_surface, z.log_kind),
@@ -62,7 +63,7 @@ def land_if_due(ctx: LoopContext, c: LoopState, step: Step):
 
 def _no_landing(ctx: LoopContext, small: LoopState):
     n, dtype = ctx.n, ctx.dtype
-    slots = sum(len(p.signs) for p in ctx.pieces) + int(ctx.sticky)
+    slots = ctx.log_rows_per_landing
     rows = (
         jnp.zeros((slots,), bool), jnp.zeros((slots, n), dtype), jnp.zeros((slots, n), dtype),
         jnp.zeros((slots,), jnp.asarray(0).dtype), jnp.zeros((slots,), jnp.asarray(0).dtype),

@@ -37,6 +37,7 @@ class Program(eqx.Module):
     step: Callable = eqx.field(static=True)  # state -> state: one solver step (frozen when done)
     running: Callable = eqx.field(static=True)  # state -> bool: not finished, not out of steps
     finish: Callable = eqx.field(static=True)  # state -> Solution
+    log_rows_per_landing: int = eqx.field(static=True)  # impact-log rows one landing writes
 
 
 def build_program(
@@ -58,6 +59,7 @@ def build_program(
     return Program(
         init=functools.partial(init, ctx), step=functools.partial(step, ctx),
         running=functools.partial(running, ctx), finish=functools.partial(finish, ctx),
+        log_rows_per_landing=ctx.log_rows_per_landing,
     )
 
 
@@ -191,7 +193,7 @@ def init(ctx: LoopContext, x0, args) -> LoopState:
         landing=jnp.array(False), target=zero,
         pending=jnp.zeros(mask_shape, bool), touch=jnp.zeros(mask_shape, bool),
         boundary=jnp.zeros(mask_shape, bool), h_after=h0,
-        num_impacts=num_impacts0,
+        num_impacts=num_impacts0, log_base=None,
         log_t=log[0], log_pre=log[1], log_post=log[2], log_surface=log[3], log_kind=log[4],
         stick=stick0, releasing=jnp.array(False),
         intervals=jnp.full((3,), jnp.nan, dtype), zeno_time=zeno_time0,
@@ -279,7 +281,7 @@ def _next_state(ctx: LoopContext, c: LoopState, taken: Step, found: Detection,
         h_after=jnp.where(
             go_land, jnp.minimum(jnp.maximum(sb - sa, h_next), 2 * first + h_min_at(first, c.time_scale)), c.h_after
         ),
-        num_impacts=landed.num_impacts,
+        num_impacts=landed.num_impacts, log_base=c.log_base,
         log_t=landed.log_t, log_pre=landed.log_pre, log_post=landed.log_post,
         log_surface=landed.log_surface, log_kind=landed.log_kind,
         intervals=landed.intervals, zeno_time=landed.zeno_time,

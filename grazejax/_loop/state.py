@@ -37,6 +37,9 @@ class LoopState(eqx.Module):
     boundary: Bool[Array, "m signs"]  # contacts on ∂Γ (β)
     h_after: RealScalar  # step size to resume with after the impact
     num_impacts: IntScalar
+    # While the loop writes a staging log (`stage_log`): the impacts already in the full
+    # log, so that the staging log's row 0 is impact `log_base`. None: the log is the full one.
+    log_base: IntScalar | None
     log_t: Float[Array, " impacts"] | None
     log_pre: Float[Array, "impacts n"] | None
     log_post: Float[Array, "impacts n"] | None
@@ -200,6 +203,57 @@ def write_log(log, row, apply, t, pre, post, surface, kind):
         log_surface.at[row].set(surface, mode="drop"),
         log_kind.at[row].set(kind, mode="drop"),
     )
+
+
+def log_row_offset(c: LoopState):
+    """The row of the state's log that impact number 0 would go to: 0 for the full log,
+    `-log_base` for a staging log."""
+    return 0 if c.log_base is None else -c.log_base
+
+
+def stage_log(c: LoopState, rows: int):
+    """`(staged, full_log)`: the state with a staging log of `rows` rows in place of its
+    impact log, and the full log it will be flushed into (`flush_log`).
+
+    Why: XLA:CPU runs a loop body's kernels one after another only if none of them touches
+    a buffer over 512 bytes (`ThunkExecutor::Options::execute_sequential_buffer_threshold`,
+    fixed in `CpuExecutable::Create`, no flag); otherwise every iteration pays for its
+    dataflow executor (~2 µs per iteration of ~3 µs at batch 1, measured). The log's rows
+    are written in the body, so a log of more than 32 two-dimensional rows (the default
+    holds 100) made every single-trajectory run 1.5-1.7× slower. A staging log of one
+    landing's rows keeps the body under the threshold; the loop stops when a lane has staged
+    a row, and the rows go to the full log outside it (`_simulate._staged_log_loop`).
+
+    The staging rows are filled from small fields of the state that have the batch axes
+    and tangents the rows will have (`where(False, field, fill)` is `fill`, folded by XLA),
+    so that JAX's while-loop fixed point holds at once (see `seed_fixed_point`). Not from
+    the full log itself: then XLA can drop the log and its writes from a run whose log is
+    unused (it cannot see through a nested loop that reads it).
+    """
+    full = tuple(getattr(c, k) for k in LOG)
+
+    def fill(like, buffer):
+        shape = (rows,) + buffer.shape[1:]
+        value = jnp.nan if jnp.issubdtype(buffer.dtype, jnp.inexact) else -1
+        return jnp.where(False, like.astype(buffer.dtype), jnp.full(shape, value, buffer.dtype))
+
+    likes = (c.t_final, c.x_final, c.x_final, c.num_impacts, c.num_impacts)
+    staged = tuple(fill(like, b) for like, b in zip(likes, full, strict=True))
+    return _set_fields(c, LOG + ("log_base",), staged + (c.num_impacts,)), full
+
+
+def has_staged_rows(c: LoopState):
+    return c.num_impacts > c.log_base
+
+
+def flush_log(c: LoopState, full_log) -> LoopState:
+    """Write the staged rows into `full_log` (rows `log_base` on); the state with it."""
+    base = c.log_base
+    staged = tuple(getattr(c, k) for k in LOG)
+    for j in range(staged[0].shape[0]):
+        row = tuple(r[j] for r in staged)
+        full_log = write_log(full_log, base + j, j < c.num_impacts - base, *row)
+    return _set_fields(c, LOG + ("log_base",), full_log + (None,))
 
 
 def two_sum(a, b):
