@@ -41,7 +41,7 @@ import numpy as np
 from ._adjoint import REVERSE_HINT, loop_kinds
 from ._loop.policies import AbstractZenoPolicy
 from ._loop.program import Program, build_program
-from ._loop.state import LOG, flush_log, has_staged_rows, packing, stage_log
+from ._loop.state import flush_log, has_staged_rows, impact_log, packing, stage_log
 from ._scene import Scene
 from ._solution import ACCEPTED, FIELD_FIX, SimulationError, Solution, failure_message
 from ._status import Status
@@ -267,8 +267,9 @@ def _staged_log_loop(cond, program: "Program", init):
     64-lane vmap took 1.26×). A small log (≤ 512 bytes) needs none of it.
     """
     rows = program.log_rows_per_landing
-    log = (getattr(init, k) for k in LOG)
-    log_bytes = max(math.prod(jnp.shape(b)) * jnp.result_type(b).itemsize for b in log)
+    log_bytes = max(
+        math.prod(jnp.shape(b)) * jnp.result_type(b).itemsize for b in impact_log(init)
+    )
     if rows == 0 or log_bytes <= _SEQUENTIAL_BUFFER_BYTES or _under_vmap(init):
         return lax.while_loop(cond, program.step, init)
 

@@ -64,6 +64,28 @@ def free_fall_scene(restitution=0.8):
     return gj.Scene(vector_field, [floor])
 
 
+def unit_box(order=(0, 1, 2, 3)):
+    """A free particle (x, y, vx, vy) in the unit box, walls in `order` of (x = 1, y = 1,
+    x = 0, y = 0): at wall x_axis = 1 or 0 the velocity component is reversed and
+    multiplied by args["rx"] (axis 0) or args["ry"] (axis 1). Impenetrable walls."""
+
+    def field(t, x, args):
+        return jnp.concatenate([x[2:], jnp.zeros(2)])
+
+    def wall(axis, at_one):
+        r = "rx" if axis == 0 else "ry"
+        phi = (lambda t, x, a: 1.0 - x[axis]) if at_one else (lambda t, x, a: x[axis])
+        return gj.Surface(
+            phi=phi,
+            jump=lambda t, x, a: x.at[2 + axis].set(-a[r] * x[2 + axis]),
+            name=f"{'xy'[axis]}={int(at_one)}",
+            impenetrable=True,
+        )
+
+    walls = [wall(0, True), wall(1, True), wall(0, False), wall(1, False)]
+    return gj.Scene(field, [walls[i] for i in order])
+
+
 def dip_start(delta, a, v0):
     """Start (h, v0) of a parabola x = h + v0 t + a t²/2 whose minimum is −delta.
 

@@ -17,7 +17,10 @@ import grazejax as gj
 import grazejax._simulate as simulate_module
 from grazejax import examples as ex
 
+from .helpers import unit_box
+
 SMALL, LARGE = 16, 100  # ex1dof rows of 2 states: 256 bytes (plain loop) and 1600 (staged)
+BOX_ARGS = {"rx": 0.9, "ry": 0.9}
 
 
 @pytest.fixture
@@ -83,23 +86,16 @@ def test_staged_log_overflow(staged_calls):
     _assert_same_rows(small, large, SMALL)
 
 
-def _box():
-    def wall(axis, at_one):
-        phi = (lambda t, x, a: 1.0 - x[axis]) if at_one else (lambda t, x, a: x[axis])
-        return gj.Surface(phi=phi, jump=lambda t, x, a: x.at[2 + axis].multiply(-0.9),
-                          impenetrable=True)
-
-    field = lambda t, x, a: jnp.concatenate([x[2:], jnp.zeros(2)])  # noqa: E731
-    return gj.Scene(field, [wall(0, True), wall(1, True), wall(0, False), wall(1, False)])
-
-
 def test_staged_log_two_rows_per_landing(staged_calls):
     """A corner: two walls in one landing, two rows staged together (4 rows of 4 states:
     128 bytes, plain; 40 rows: staged)."""
-    scene = _box()
+    scene = unit_box()
     x0 = jnp.array([0.3, 0.3, 0.7, 0.7])  # reaches the corner (1, 1) at t = 1
-    run = lambda m: gj.simulate(scene, x0, 0.0, 2.5, None, max_impacts=m, rtol=1e-12,  # noqa: E731
-                                atol=1e-12, throw=False)
+
+    def run(m):
+        return gj.simulate(scene, x0, 0.0, 2.5, BOX_ARGS, max_impacts=m, rtol=1e-12, atol=1e-12,
+                           throw=False)
+
     small, large = run(4), run(40)
     assert staged_calls == [4]  # four walls, one side each
     k = int(small.num_impacts)

@@ -14,7 +14,15 @@ from .compact import per_lane
 from .context import LoopContext
 from .field import field_jumps
 from .policies import keep_sliding, start_or_end_sliding, zeno_test
-from .state import LoopState, dd_add, log_row_offset, with_buffers, without_buffers, write_log
+from .state import (
+    LoopState,
+    dd_add,
+    impact_log,
+    log_row_offset,
+    with_buffers,
+    without_buffers,
+    write_log,
+)
 from .step import Step
 
 
@@ -46,7 +54,7 @@ def land_if_due(ctx: LoopContext, c: LoopState, step: Step):
         landed_small, rows, t_event, s_save = lax.cond(
             eqxi.unvmap_any(lands), land, no_land, operands
         )
-    log = (c.log_t, c.log_pre, c.log_post, c.log_surface, c.log_kind)
+    log = impact_log(c)
     row = c.num_impacts + log_row_offset(c)
     count = jnp.array(0)
     for slot in range(rows[0].shape[0]):

@@ -65,6 +65,11 @@ LOG = ("log_t", "log_pre", "log_post", "log_surface", "log_kind")
 BUFFERS = LOG + ("save_index", "save_xs")
 
 
+def impact_log(c: LoopState) -> tuple:
+    """The state's impact log, as the tuple `write_log` takes (fields `LOG`)."""
+    return tuple(getattr(c, k) for k in LOG)
+
+
 def _set_fields(c: LoopState, names, values) -> LoopState:
     """`c` with the fields `names` replaced by `values` (None allowed: a field left out)."""
     return eqx.tree_at(
@@ -164,7 +169,7 @@ def packing(template: LoopState):
             )
             for i, d in enumerate(dtypes)
         )
-        return groups, tuple(getattr(c, k) for k in LOG)
+        return groups, impact_log(c)
 
     def unpack(packed) -> LoopState:
         groups, log = packed
@@ -230,7 +235,7 @@ def stage_log(c: LoopState, rows: int):
     the full log itself: then XLA can drop the log and its writes from a run whose log is
     unused (it cannot see through a nested loop that reads it).
     """
-    full = tuple(getattr(c, k) for k in LOG)
+    full = impact_log(c)
 
     def fill(like, buffer):
         shape = (rows,) + buffer.shape[1:]
@@ -249,7 +254,7 @@ def has_staged_rows(c: LoopState):
 def flush_log(c: LoopState, full_log) -> LoopState:
     """Write the staged rows into `full_log` (rows `log_base` on); the state with it."""
     base = c.log_base
-    staged = tuple(getattr(c, k) for k in LOG)
+    staged = impact_log(c)
     for j in range(staged[0].shape[0]):
         row = tuple(r[j] for r in staged)
         full_log = write_log(full_log, base + j, j < c.num_impacts - base, *row)

@@ -9,35 +9,17 @@ outcome must not depend on the order of the surfaces in the scene.
 import math
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import grazejax as gj
 
+from ..helpers import unit_box
 from ._common import EPS, f64, f64_args, record, status
 
-
-def _box_field(t, x, args):
-    return jnp.concatenate([x[2:], jnp.zeros(2)])
-
-
-def _wall(axis, at_one):
-    """x_axis = 1 (at_one) or x_axis = 0; the velocity component is reversed times r_axis."""
-    r = "rx" if axis == 0 else "ry"
-    phi = (lambda t, x, a: 1.0 - x[axis]) if at_one else (lambda t, x, a: x[axis])
-    return gj.Surface(
-        phi=phi,
-        jump=lambda t, x, a: x.at[2 + axis].set(-a[r] * x[2 + axis]),
-        name=f"{'xy'[axis]}={int(at_one)}",
-        impenetrable=True,
-    )
-
-
-WALLS = [_wall(0, True), _wall(1, True), _wall(0, False), _wall(1, False)]
 ORDERS = {"forward": (0, 1, 2, 3), "reversed": (3, 2, 1, 0)}
-BOXES = {name: gj.Scene(_box_field, [WALLS[i] for i in order]) for name, order in ORDERS.items()}
+BOXES = {name: unit_box(order) for name, order in ORDERS.items()}
 
 _RUNNERS = {}
 
