@@ -120,7 +120,9 @@ def simulate(
     - `adjoint`: how the loop is differentiated, as a Diffrax adjoint.
       `None`/`diffrax.ForwardMode()` (default): `jax.jvp`/`jax.jacfwd`;
       `diffrax.RecursiveCheckpointAdjoint(checkpoints=...)`: `jax.grad`/`jax.vjp`
-      (recomputes steps between checkpoints); `diffrax.DirectAdjoint()`: both modes, at the
+      (recomputes steps between checkpoints; `checkpoints >= max_steps` stores every step,
+      the fastest reverse pass when `max_steps` bounds the run closely);
+      `diffrax.DirectAdjoint()`: both modes, at the
       memory cost of every step. Event-time tangents are the same in every mode (the
       implicit function theorem at the landing step).
     - `check_field_jumps`: at every event (impact, crossing, release), probe the vector
@@ -212,7 +214,8 @@ def run_loop(cond, program: "Program", init, adjoint, max_steps: int):
             lambda packed: cond(unpack(packed)),
             lambda packed: pack(program.step(unpack(packed))),
             pack(init), max_steps=max_steps + 1, kind=kinds.outer,
-            checkpoints=kinds.checkpoints, buffers=lambda packed: packed[1],
+            checkpoints=_checkpoint_count(kinds.checkpoints, max_steps),
+            buffers=lambda packed: packed[1],
         )
         return unpack(final)
     # DirectAdjoint's bounded loop keeps the log in its carry: with the log as buffers it
@@ -222,6 +225,20 @@ def run_loop(cond, program: "Program", init, adjoint, max_steps: int):
         cond, program.step, init, max_steps=max_steps + 1, kind=kinds.outer,
         checkpoints=kinds.checkpoints,
     )
+
+
+def _checkpoint_count(checkpoints: int | None, max_steps: int) -> int | None:
+    """The checkpoints to ask Equinox for: `checkpoints >= max_steps` means every step.
+
+    The loop runs up to `max_steps + 1` iterations (the last one marks MAX_STEPS), and
+    Equinox's checkpointed loop takes its fast path (no recomputation, no checkpoint
+    schedule in the backward pass) only when the checkpoints equal its step bound: a user's
+    `RecursiveCheckpointAdjoint(checkpoints=max_steps)` missed it by one and cost 8.9× the
+    primal instead of 5.2× (forced impact oscillator, 10 impacts, max_steps = 1000).
+    """
+    if checkpoints is not None and checkpoints >= max_steps:
+        return max_steps + 1
+    return checkpoints
 
 
 def _under_vmap(tree) -> bool:

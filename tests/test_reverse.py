@@ -446,3 +446,18 @@ def test_simultaneous_impacts_overflowing_the_log():
     forward = jax.jacfwd(lambda q: loss(q, None)[0])(p)
     reverse = jax.grad(lambda q: loss(q, RCA)[0])(p)
     assert_close(reverse, forward, MODES)
+
+
+def test_checkpoints_at_max_steps_mean_every_step():
+    """`checkpoints >= max_steps` asks Equinox for a checkpoint at every one of the loop's
+    max_steps + 1 iterations (its fast backward pass; see `_checkpoint_count`), with the
+    same gradient as the default schedule."""
+    from grazejax._simulate import _checkpoint_count
+
+    assert _checkpoint_count(None, 100) is None
+    assert _checkpoint_count(30, 100) == 30
+    assert _checkpoint_count(100, 100) == _checkpoint_count(10**6, 100) == 101
+    p = jnp.asarray(BALL_P)
+    every_step = diffrax.RecursiveCheckpointAdjoint(checkpoints=DIRECT_STEPS)
+    reverse = jax.jit(jax.grad(lambda q: ball_loss(q, every_step, DIRECT_STEPS)))(p)
+    assert_close(reverse, ball_rca(p), MODES)
