@@ -32,8 +32,9 @@ Sections:
    tangents).
 
 Every time is the min (and median) of repeats after compilation, with
-`block_until_ready`; compile times are reported separately. `--quick` (< 2 minutes on a
-shared 2-core machine) uses fewer checkpoint counts and repeats.
+`block_until_ready`, taken in interleaved rounds (one call of each mode per round) so that the
+ratios of one section share the machine's load; compile times are reported separately.
+`--quick` (~4 minutes on a shared 2-core machine) uses fewer checkpoint counts and repeats.
 """
 
 from __future__ import annotations
@@ -54,7 +55,7 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import diffrax  # noqa: E402
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
-from _cases import SHARED_MACHINE_NOTE, log, machine, measure, versions  # noqa: E402
+from _cases import SHARED_MACHINE_NOTE, log, machine, versions  # noqa: E402
 
 import grazejax as gj  # noqa: E402  (turns float64 on)
 from grazejax import examples  # noqa: E402
@@ -101,12 +102,19 @@ def _compile(fn, *example):
     return compiled, seconds, memory
 
 
-def _time(compiled, *inputs, budget_s, max_repeats):
-    def call():
-        return jax.block_until_ready(compiled(*inputs))
-
-    out, st = measure(call, budget_s=budget_s, max_repeats=max_repeats, min_repeats=2)
-    return out, st
+def _interleaved(programs, inputs, repeats):
+    """Time every program on `inputs` in rounds (one call of each per round), so that the
+    ratios between them share the machine's load: `{name: {"samples", "finite"}}`."""
+    out = {}
+    for name, program in programs.items():  # a first call of each, outside the timings
+        result = jax.block_until_ready(program(*inputs))
+        out[name] = {"samples": [], "finite": bool(np.all(np.isfinite(np.asarray(result))))}
+    for _ in range(max(3, repeats)):
+        for name, program in programs.items():
+            t = time.perf_counter()
+            jax.block_until_ready(program(*inputs))
+            out[name]["samples"].append(time.perf_counter() - t)
+    return out
 
 
 def _modes(checkpoints):
@@ -122,7 +130,7 @@ def _modes(checkpoints):
     return modes
 
 
-def section_impacts(sizes, checkpoints, budget_s, max_repeats):
+def section_impacts(sizes, checkpoints, max_repeats):
     """Gradient cost vs the primal at several impact counts, and memory per mode."""
     p = jnp.asarray(P0)
     rows, memory, programs = [], [], {}
@@ -131,17 +139,18 @@ def section_impacts(sizes, checkpoints, budget_s, max_repeats):
         programs[name] = compiled
         memory.append({"mode": name, "compile_s": compile_s, **mem})
         log(f"  {name}: compiled in {compile_s:.1f} s, temp {mem['temp_bytes'] / 2**20:.1f} MiB")
-        for n in sizes:
-            t1 = jnp.asarray(n * PERIOD + 1.0)  # the n-th impact comes near n·PERIOD − 0.1
-            out, st = _time(compiled, p, t1, budget_s=budget_s, max_repeats=max_repeats)
+    for n in sizes:
+        t1 = jnp.asarray(n * PERIOD + 1.0)  # the n-th impact comes near n·PERIOD − 0.1
+        samples = _interleaved(programs, (p, t1), max_repeats)
+        for name, times in samples.items():
             rows.append(
                 {
                     "mode": name,
                     "target_impacts": n,
-                    "min_s": st["min_s"],
-                    "median_s": st["median_s"],
-                    "repeats": st["repeats"],
-                    "finite": bool(np.all(np.isfinite(np.asarray(out)))),
+                    "min_s": float(np.min(times["samples"])),
+                    "median_s": float(np.median(times["samples"])),
+                    "repeats": len(times["samples"]),
+                    "finite": times["finite"],
                 }
             )
     # Check the impact counts and the agreement of the modes once, outside the timings.
@@ -195,16 +204,10 @@ def section_direct(sizes, max_repeats):
         for name, fn in modes:
             programs[name], compile_s, mem = _compile(fn, p, t1)
             row[f"{name}_compile_s"], row[f"{name}_temp_bytes"] = compile_s, mem["temp_bytes"]
-        # Interleaved repeats, so that the three ratios share the machine's load.
-        outs = {name: jax.block_until_ready(program(p, t1)) for name, program in programs.items()}
-        samples = {name: [] for name in programs}
-        for _ in range(max(3, max_repeats)):
-            for name, program in programs.items():
-                t = time.perf_counter()
-                jax.block_until_ready(program(p, t1))
-                samples[name].append(time.perf_counter() - t)
+        samples = _interleaved(programs, (p, t1), max_repeats)
+        outs = {name: program(p, t1) for name, program in programs.items()}
         for name in programs:
-            row[f"{name}_min_s"] = min(samples[name])
+            row[f"{name}_min_s"] = min(samples[name]["samples"])
         row["ratio_to_primal"] = row["grad_direct_min_s"] / row["primal_min_s"]
         row["every_step_ratio_to_primal"] = row["grad_rca_every_step_min_s"] / row["primal_min_s"]
         direct_grad = np.asarray(outs["grad_direct"])
@@ -247,7 +250,7 @@ def fourier_profiles(harmonics):
     return true, start
 
 
-def section_many(harmonics, num_times, budget_s, max_repeats):
+def section_many(harmonics, num_times, max_repeats):
     true, start = fourier_profiles(harmonics)
     observed = fourier_run(jnp.asarray(true), harmonics, num_times).impact_times
     c = jnp.asarray(start)
@@ -265,16 +268,18 @@ def section_many(harmonics, num_times, budget_s, max_repeats):
         "jacfwd": jax.jacfwd(lambda c, o: fourier_loss(c, o, None, harmonics, num_times)),
     }
     row = {"parameters": 2 * harmonics, "impact_times": num_times}
-    grads = {}
+    programs = {}
     for name, fn in fns.items():
-        compiled, compile_s, mem = _compile(fn, c, observed)
-        out, st = _time(compiled, c, observed, budget_s=budget_s, max_repeats=max_repeats)
-        grads[name] = np.asarray(out)
-        row[f"{name}_min_s"], row[f"{name}_median_s"] = st["min_s"], st["median_s"]
+        programs[name], compile_s, mem = _compile(fn, c, observed)
         row[f"{name}_compile_s"], row[f"{name}_temp_bytes"] = compile_s, mem["temp_bytes"]
+    samples = _interleaved(programs, (c, observed), max_repeats)
+    grads = {name: np.asarray(program(c, observed)) for name, program in programs.items()}
+    for name in programs:
+        times = samples[name]["samples"]
+        row[f"{name}_min_s"], row[f"{name}_median_s"] = min(times), float(np.median(times))
         log(
-            f"  many ({2 * harmonics} params): {name} {st['min_s'] * 1e3:.1f} ms "
-            f"(compile {compile_s:.1f} s)"
+            f"  many ({2 * harmonics} params): {name} {min(times) * 1e3:.1f} ms "
+            f"(compile {row[f'{name}_compile_s']:.1f} s)"
         )
     row["steps"], row["direct_max_steps"] = steps, max_steps
     row["grad_over_primal"] = row["grad_rca_min_s"] / row["primal_min_s"]
@@ -374,18 +379,18 @@ def main(argv=None):
     if ns.many_only:
         return _many_only(ns.many_only, ns.out)
     checkpoints = (None,) if ns.smoke else (30, None) if quick else (10, 30, 100, None, 1000, 4000)
-    budget, repeats = (0.0, 1) if ns.smoke else (1.0, 3) if quick else (3.0, 7)
+    repeats = 1 if ns.smoke else 3 if quick else 7
     sizes = (10,) if ns.smoke else (10, 100, 1000)
     t_start = time.perf_counter()
     log("impacts: gradient vs primal")
-    impacts, memory, programs = section_impacts(sizes, checkpoints, budget, repeats)
+    impacts, memory, programs = section_impacts(sizes, checkpoints, repeats)
     log("agreement of the modes")
     agreement = section_agreement(programs)
     log("direct adjoint")
     direct = section_direct((10,) if quick else (10, 100), repeats)
     log("many parameters")
     harmonics = (3,) if ns.smoke else (50,) if quick else (50, 200)
-    many = [section_many(h, 20, budget, repeats) for h in harmonics]
+    many = [section_many(h, 20, repeats) for h in harmonics]
     data = {
         "mode": "smoke" if ns.smoke else "quick" if quick else "full",
         "tolerances": TOL,
@@ -414,7 +419,7 @@ def main(argv=None):
 
 def _many_only(harmonics, out):
     """Reverse vs forward mode as the number of parameters grows (20 impact times)."""
-    rows = [section_many(h, 20, 20.0, 5) for h in harmonics]
+    rows = [section_many(h, 20, 5) for h in harmonics]
     with open(os.path.join(out, "gradients_many_sizes.json"), "w") as f:
         json.dump({"many": rows, "machine": machine(), "versions": versions(),
                    "note": SHARED_MACHINE_NOTE}, f, indent=1)
