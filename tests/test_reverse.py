@@ -461,3 +461,15 @@ def test_checkpoints_at_max_steps_mean_every_step():
     every_step = diffrax.RecursiveCheckpointAdjoint(checkpoints=DIRECT_STEPS)
     reverse = jax.jit(jax.grad(lambda q: ball_loss(q, every_step, DIRECT_STEPS)))(p)
     assert_close(reverse, ball_rca(p), MODES)
+
+    # A run that stops at MAX_STEPS uses the loop's extra iteration, the one the count adds.
+    def state_sum(q, adjoint):
+        sol = gj.simulate(BALL, q[:2], 0.0, BALL_T, {"g": q[2], "e": q[3]}, adjoint=adjoint,
+                          max_steps=6, max_impacts=8, **TIGHT)
+        return jnp.sum(sol.x_final), sol.status
+
+    assert int(state_sum(p, None)[1]) == gj.Status.MAX_STEPS
+    forward = jax.jacfwd(lambda q: state_sum(q, None)[0])(p)
+    for checkpoints in (6, 100):
+        adjoint = diffrax.RecursiveCheckpointAdjoint(checkpoints=checkpoints)
+        assert_close(jax.grad(lambda q, a=adjoint: state_sum(q, a)[0])(p), forward, MODES)
