@@ -192,8 +192,13 @@ def main(argv=None):
         configs, hey_tols, scipy_tols = [("Dopri8", diffrax.Dopri8(), 1e-8)], (1e-8,), (1e-6,)
     else:
         configs = [("Tsit5", diffrax.Tsit5(), t) for t in (1e-6, 1e-8, 1e-10)]
-        configs += [("Dopri8", diffrax.Dopri8(), t) for t in (1e-6, 1e-8, 1e-10, 1e-12)]
-        hey_tols = (1e-6, 1e-8, 1e-10, 1e-12, 1e-15)
+        # Decades, and 1-2-5 steps in the band where each tool's error meets the tightest
+        # level (its error is ~5-50× its tolerance for Dopri8, ~1× for heyoka): the
+        # cheapest configuration reaching a level is then found to a factor 2 or 2.5 in
+        # tolerance for both.
+        configs += [("Dopri8", diffrax.Dopri8(), t)
+                    for t in (1e-6, 1e-8, 1e-10, 5e-12, 2e-12, 1e-12)]
+        hey_tols = (1e-6, 1e-8, 5e-10, 2e-10, 1e-10, 5e-11, 2e-11, 1e-12, 1e-15)
         scipy_tols = (1e-7, 1e-10, 1e-12)
     x0s = bench_phases.starts(lanes)
     reference_runner = peers.HeyokaImpactRunner("ex1dof", tol=1e-19, fp_type=np.longdouble, mu=0.2)
