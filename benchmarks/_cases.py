@@ -5,6 +5,7 @@ The timing and machine helpers (`stats`, `first_minus_second`, `machine`, `versi
 measures the same way; this module adds what the suite needs on top:
 
 - `measure`: adaptive repeats within a time budget (min and median of the calls);
+- `time_interleaved`: several functions timed side by side, in rounds;
 
 - `Case`: one impact problem, given three times over: a grazejax `Scene`, a peer
   `ImpactSystem` (benchmarks/peers.py: SciPy and heyoka loops with the same event
@@ -101,6 +102,33 @@ def measure(fn, budget_s: float, max_repeats: int, min_repeats: int = 1):
     if more > 0:
         samples += _samples(fn, more)
     return out, {**stats(samples), "first_s": first}
+
+
+def time_interleaved(fns, repeats):
+    """Time several functions side by side: a first call of each (outside the timings),
+    then `repeats` rounds with one call of each, so that the machine's load falls on all
+    alike and their ratios are what to read.
+
+    Returns `(timings, first_results)`: per name, `min_s`, `median_s`, `first_call_s` and
+    `repeats`; and what each function's first call returned.
+    """
+    first, results = {}, {}
+    for name, fn in fns.items():
+        t = time.perf_counter()
+        results[name] = fn()
+        first[name] = time.perf_counter() - t
+    times = {name: [] for name in fns}
+    for _ in range(repeats):
+        for name, fn in fns.items():
+            t = time.perf_counter()
+            fn()
+            times[name].append(time.perf_counter() - t)
+    timings = {
+        name: {"min_s": min(v), "median_s": float(np.median(v)), "first_call_s": first[name],
+               "repeats": len(v)}
+        for name, v in times.items()
+    }
+    return timings, results
 
 
 def _samples(fn, repeats):

@@ -55,7 +55,7 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import diffrax  # noqa: E402
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
-from _cases import SHARED_MACHINE_NOTE, log, machine, versions  # noqa: E402
+from _cases import SHARED_MACHINE_NOTE, log, machine, time_interleaved, versions  # noqa: E402
 
 import grazejax as gj  # noqa: E402  (turns float64 on)
 from grazejax import examples  # noqa: E402
@@ -103,18 +103,12 @@ def _compile(fn, *example):
 
 
 def _interleaved(programs, inputs, repeats):
-    """Time every program on `inputs` in rounds (one call of each per round), so that the
-    ratios between them share the machine's load: `{name: {"samples", "finite"}}`."""
-    out = {}
-    for name, program in programs.items():  # a first call of each, outside the timings
-        result = jax.block_until_ready(program(*inputs))
-        out[name] = {"samples": [], "finite": bool(np.all(np.isfinite(np.asarray(result))))}
-    for _ in range(max(3, repeats)):
-        for name, program in programs.items():
-            t = time.perf_counter()
-            jax.block_until_ready(program(*inputs))
-            out[name]["samples"].append(time.perf_counter() - t)
-    return out
+    """`time_interleaved` of the compiled `programs` on `inputs` (at least 3 rounds)."""
+    calls = {
+        name: (lambda program=program: jax.block_until_ready(program(*inputs)))
+        for name, program in programs.items()
+    }
+    return time_interleaved(calls, max(3, repeats))
 
 
 def _modes(checkpoints):
@@ -141,16 +135,16 @@ def section_impacts(sizes, checkpoints, max_repeats):
         log(f"  {name}: compiled in {compile_s:.1f} s, temp {mem['temp_bytes'] / 2**20:.1f} MiB")
     for n in sizes:
         t1 = jnp.asarray(n * PERIOD + 1.0)  # the n-th impact comes near n·PERIOD − 0.1
-        samples = _interleaved(programs, (p, t1), max_repeats)
-        for name, times in samples.items():
+        timings, outs = _interleaved(programs, (p, t1), max_repeats)
+        for name, st in timings.items():
             rows.append(
                 {
                     "mode": name,
                     "target_impacts": n,
-                    "min_s": float(np.min(times["samples"])),
-                    "median_s": float(np.median(times["samples"])),
-                    "repeats": len(times["samples"]),
-                    "finite": times["finite"],
+                    "min_s": st["min_s"],
+                    "median_s": st["median_s"],
+                    "repeats": st["repeats"],
+                    "finite": bool(np.all(np.isfinite(np.asarray(outs[name])))),
                 }
             )
     # Check the impact counts and the agreement of the modes once, outside the timings.
@@ -204,10 +198,9 @@ def section_direct(sizes, max_repeats):
         for name, fn in modes:
             programs[name], compile_s, mem = _compile(fn, p, t1)
             row[f"{name}_compile_s"], row[f"{name}_temp_bytes"] = compile_s, mem["temp_bytes"]
-        samples = _interleaved(programs, (p, t1), max_repeats)
-        outs = {name: program(p, t1) for name, program in programs.items()}
+        timings, outs = _interleaved(programs, (p, t1), max_repeats)
         for name in programs:
-            row[f"{name}_min_s"] = min(samples[name]["samples"])
+            row[f"{name}_min_s"] = timings[name]["min_s"]
         row["ratio_to_primal"] = row["grad_direct_min_s"] / row["primal_min_s"]
         row["every_step_ratio_to_primal"] = row["grad_rca_every_step_min_s"] / row["primal_min_s"]
         direct_grad = np.asarray(outs["grad_direct"])
@@ -272,13 +265,12 @@ def section_many(harmonics, num_times, max_repeats):
     for name, fn in fns.items():
         programs[name], compile_s, mem = _compile(fn, c, observed)
         row[f"{name}_compile_s"], row[f"{name}_temp_bytes"] = compile_s, mem["temp_bytes"]
-    samples = _interleaved(programs, (c, observed), max_repeats)
-    grads = {name: np.asarray(program(c, observed)) for name, program in programs.items()}
-    for name in programs:
-        times = samples[name]["samples"]
-        row[f"{name}_min_s"], row[f"{name}_median_s"] = min(times), float(np.median(times))
+    timings, outs = _interleaved(programs, (c, observed), max_repeats)
+    grads = {name: np.asarray(out) for name, out in outs.items()}
+    for name, st in timings.items():
+        row[f"{name}_min_s"], row[f"{name}_median_s"] = st["min_s"], st["median_s"]
         log(
-            f"  many ({2 * harmonics} params): {name} {min(times) * 1e3:.1f} ms "
+            f"  many ({2 * harmonics} params): {name} {st['min_s'] * 1e3:.1f} ms "
             f"(compile {row[f'{name}_compile_s']:.1f} s)"
         )
     row["steps"], row["direct_max_steps"] = steps, max_steps

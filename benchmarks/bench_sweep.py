@@ -58,6 +58,7 @@ from grazejax import examples as ex
 
 sys.path.insert(0, os.path.dirname(__file__))
 import peers  # noqa: E402
+from _cases import time_interleaved  # noqa: E402
 
 CYCLE_POST = np.array([0.0, 0.0384224329])  # post-impact state of the μ = 0.2 cycle
 
@@ -77,23 +78,6 @@ def time_call(fn, repeats):
         fn()
         times.append(time.perf_counter() - t)
     return min(times), float(np.median(times))
-
-
-def time_interleaved(fns, repeats):
-    """Min (and median) seconds of each function, the variants run in turn each round."""
-    first = {}
-    for name, fn in fns.items():
-        t = time.perf_counter()
-        fn()
-        first[name] = time.perf_counter() - t
-    times = {name: [] for name in fns}
-    for _ in range(repeats):
-        for name, fn in fns.items():
-            t = time.perf_counter()
-            fn()
-            times[name].append(time.perf_counter() - t)
-    return {name: {"min_s": min(v), "median_s": float(np.median(v)), "first_call_s": first[name]}
-            for name, v in times.items()}
 
 
 def peak_rss_mib():
@@ -201,7 +185,7 @@ def throughput(lanes, quick):
         return gj.sweep(scene, x0s, 0.0, jnp.inf, args, balance="none", **tight)
 
     out_tight = run_tight()
-    timing = time_interleaved(
+    timing, _ = time_interleaved(
         {"none": run("none"), "refill": run("refill"), "dopri8_1e-12": run_tight}, 2 if quick else 4
     )
 
@@ -303,7 +287,7 @@ def slowest_lane(case, quick):
         if not quick:
             fns["presort_chunk"] = presort
     fns["refill"] = lambda: run("refill")
-    timing = time_interleaved(fns, 2 if quick else 3)
+    timing, _ = time_interleaved(fns, 2 if quick else 3)
     # Same results whatever the variant (statuses and step counts; values: tests/test_sweep.py).
     plain = run("none")
     assert np.array_equal(plain.num_steps, ref.num_steps) and np.array_equal(plain.status, ref.status)
