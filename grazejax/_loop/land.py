@@ -20,6 +20,7 @@ from .state import (
     impact_log,
     log_row_offset,
     with_buffers,
+    with_impact_log,
     without_buffers,
     write_log,
 )
@@ -61,11 +62,7 @@ def land_if_due(ctx: LoopContext, c: LoopState, step: Step):
         apply, pre, post, surface, kind = (r[slot] for r in rows)
         log = write_log(log, row + count, apply, t_event, pre, post, surface, kind)
         count = count + apply
-    landed = eqx.tree_at(
-        lambda z: (z.log_t, z.log_pre, z.log_post, z.log_surface, z.log_kind),
-        with_buffers(landed_small, c),
-        log,
-    )
+    landed = with_impact_log(with_buffers(landed_small, c), log)
     return landed, t_event, s_save
 
 

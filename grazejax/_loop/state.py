@@ -70,6 +70,11 @@ def impact_log(c: LoopState) -> tuple:
     return tuple(getattr(c, k) for k in LOG)
 
 
+def with_impact_log(c: LoopState, log) -> LoopState:
+    """`c` with its impact log replaced by `log` (the tuple `impact_log` returns)."""
+    return _set_fields(c, LOG, log)
+
+
 def _set_fields(c: LoopState, names, values) -> LoopState:
     """`c` with the fields `names` replaced by `values` (None allowed: a field left out)."""
     return eqx.tree_at(
