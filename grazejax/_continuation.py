@@ -426,7 +426,10 @@ def continue_orbit(
     - `scene`: a [`grazejax.Scene`][].
     - `orbit`: a periodic orbit at `mu_start` (from [`grazejax.find_periodic_orbit`][]).
       It is re-phased to start in the middle of its longest flight (away from impacts),
-      so that changes of the impact count show up as grazing, not as a moving start.
+      so that changes of the impact count show up as grazing, not as a moving start, and
+      solved again there by the continuation's own corrector (with μ = mu_start held).
+      An orbit whose status is neither SUCCESS nor LOOSE_ATOL, or whose re-solve fails,
+      ends the branch at once with status START_FAILED.
     - `args_of`: `args_of(mu) -> args`, traceable (it runs inside `jit`). Pass the same
       function object across calls to reuse the compiled program.
     - `mu_start`, `mu_stop`: the parameter range; the first step goes towards `mu_stop`.
@@ -486,21 +489,20 @@ def continue_orbit(
     direction = 1.0 if mu_stop > mu_start else -1.0
     T_fixed = jnp.asarray(float(orbit.period))
 
-    # ---- the start: re-phased, re-solved in the period map used here ----
+    # ---- the start: re-phased, then re-solved in the period map used here by the
+    # corrector itself (its bordered row fixes μ = mu_start): a separate Newton solve
+    # compiled a second Newton program, ~9 s of a first call ----
     t_s, x_s = _rephase(scene, orbit, args_of(mu_start), kw)
-    start = find_periodic_orbit(
-        scene, x_s, float(orbit.period), args_of(mu_start), t0=t_s, fixed_period=fixed,
-        start_at_impact=False, rtol=rtol, atol=atol, solver=solver, newton_tol=newton_tol,
-    )
     n = x_s.shape[0]
-    if int(start.status) != OrbitStatus.SUCCESS:
+    usable = int(orbit.status) in (OrbitStatus.SUCCESS, OrbitStatus.LOOSE_ATOL)
+    if not usable or not np.all(np.isfinite(x_s)):
         return _empty_branch(n, ContinuationStatus.START_FAILED, settings)
     tracer = _Tracer(scene=scene, fam=fam, args_of=args_of, kw=kw, fixed=fixed, n=n,
                      t0=jnp.asarray(t_s), T_fixed=T_fixed, ts_unit=ts_unit, mu_stop=mu_stop,
                      direction=direction, ds=float(ds), ds_min=float(ds_min),
                      ds_max=float(ds_max), max_points=max_points, locate_tol=locate_tol,
                      switch_branches=switch_branches)
-    if not tracer.begin(start, mu_start):
+    if not tracer.begin(x_s, float(orbit.period), mu_start):
         return _empty_branch(n, ContinuationStatus.START_FAILED, settings)
     bar = None
     if progress:
@@ -591,13 +593,13 @@ class _Tracer:
         self.current = other
         self.h = self.ds
 
-    def begin(self, start: Orbit, mu_start) -> bool:
-        """The first point at μ = mu_start exactly (the bordered row fixes μ); its
-        tangent comes out oriented towards increasing μ, then towards mu_stop."""
-        x0 = np.asarray(start.x0)
-        Y = jnp.asarray(np.concatenate([[] if self.fixed else [float(start.period)], x0,
-                                        [mu_start]]))
-        f0 = np.asarray(self.scene.vector_field(self.t0, start.x0, self.args_of(mu_start)))
+    def begin(self, x0, period: float, mu_start) -> bool:
+        """The first point at μ = mu_start exactly (the bordered row fixes μ), corrected
+        from the start (t0, x0) on the orbit; its tangent comes out oriented towards
+        increasing μ, then towards mu_stop."""
+        x0 = np.asarray(x0, float)
+        Y = jnp.asarray(np.concatenate([[] if self.fixed else [period], x0, [mu_start]]))
+        f0 = np.asarray(self.scene.vector_field(self.t0, jnp.asarray(x0), self.args_of(mu_start)))
         e_j, c, self.j = self.phase_of(x0, f0)
         e_mu = jnp.zeros(Y.shape[0]).at[-1].set(1.0)
         first = _correct(self.fam, Y, e_mu, self.t0, e_j, c, self.T_fixed, self.ts_unit)

@@ -63,6 +63,49 @@ def _state_scale(*arrays) -> float:
     return float(s) if s > 0 else 1.0
 
 
+def jacobian_in_one_pass(fn):
+    """`fn(y, args)` for `optx.root_find`, whose JVP in `y` computes ∂fn/∂y in one pass.
+
+    Why: optimistix's Newton takes `jax.linearize` of the residual, and JAX linearizes a
+    `while_loop` by running it once for the primal values and once more, whole, for the
+    tangents (it cannot split one loop's body into known and unknown parts: jax-ml/jax
+    `_while_partial_eval`). Each Newton program then held the impact loop twice — the
+    primal loop and its JVP loop — in its compiled code and in every iteration. Here the
+    JVP in `y` alone (Newton's case) is `J ẏ` with `(fn, J)` from one `jax.jacfwd` pass:
+    the loop is traced, compiled and run once per iteration. Tangents in `args` (implicit
+    differentiation of the solution) take the plain JVP, as before.
+    """
+    from jax.custom_derivatives import SymbolicZero, zero_from_primal
+
+    def call(y, args):
+        # The rule must not close over tracers (optimistix transforms the traced residual
+        # again for its implicit derivative, after this trace has ended): every array the
+        # residual reads, closed over or in `args`, becomes an explicit input.
+        converted = eqx.filter_closure_convert(fn, y, args)
+        dynamic, static = eqx.partition((converted, args), eqx.is_array)
+
+        def plain(y, dynamic):
+            converted, args = eqx.combine(dynamic, static)
+            return converted(y, args)
+
+        def jvp(primals, tangents):
+            y, dynamic = primals
+            y_dot, dynamic_dot = tangents
+            zero = lambda v: isinstance(v, SymbolicZero)  # noqa: E731
+            if not zero(y_dot) and all(map(zero, jax.tree.leaves(dynamic_dot, is_leaf=zero))):
+                jac, value = jax.jacfwd(lambda z: (plain(z, dynamic),) * 2, has_aux=True)(y)
+                return value, jac @ y_dot
+            dense = jax.tree.map(lambda d, p: zero_from_primal(p) if zero(d) else d,
+                                 (y_dot, dynamic_dot), primals, is_leaf=zero)
+            return jax.jvp(plain, primals, dense)
+
+        residual = jax.custom_jvp(plain)
+        residual.defjvp(jvp, symbolic_zeros=True)
+        return residual(y, dynamic)
+
+    return call
+
+
 def _newton_for(newton_tol, scale):
     """Newton's method with the tolerances `newton_tol` (relative) and `newton_tol · scale`.
 
@@ -268,6 +311,6 @@ def _bordered_newton(rows_of, root_finder, max_steps, Y_pred, tangent):
     def bordered(Y, _):
         return jnp.concatenate([rows_of(Y), jnp.dot(tangent, Y - Y_pred)[None]])
 
-    solution = optx.root_find(bordered, root_finder, Y_pred, None, max_steps=max_steps,
-                              throw=False)
+    solution = optx.root_find(jacobian_in_one_pass(bordered), root_finder, Y_pred, None,
+                              max_steps=max_steps, throw=False)
     return solution.value, solution.result == optx.RESULTS.successful, solution.stats["num_steps"]

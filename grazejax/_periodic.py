@@ -65,6 +65,7 @@ from ._orbit_common import (
     _solver_name,
     _state_at,
     _state_scale,
+    jacobian_in_one_pass,
     orbit_kernel,
 )
 from ._scene import Scene
@@ -319,21 +320,30 @@ def _newton(pmap: _PeriodMap, fixed_period: bool, root_finder, max_steps: int, y
             r = jnp.concatenate([x_end - x, (jnp.dot(x, e_j) - c)[None]])
             return jnp.where(ok, r, jnp.nan)
 
-    solution = optx.root_find(residual, root_finder, y0, args, max_steps=max_steps, throw=False)
+    solution = optx.root_find(jacobian_in_one_pass(residual), root_finder, y0, args,
+                              max_steps=max_steps, throw=False)
     return solution.value, solution.result == optx.RESULTS.successful, solution.stats["num_steps"]
 
 
 def _phase_condition(pmap: _PeriodMap, x_guess, t0, T_guess, args, fix, fixed_period):
     """(j, c) of the phase condition x_j = c, and the guess run's linearization."""
-    f_guess = pmap.scene.vector_field(t0, x_guess, args)
     lin = _linearize(pmap, x_guess, t0, T_guess, args)
+    j, c, f_guess = _phase_index(pmap, fixed_period, x_guess, t0, args, fix, lin[4].impact_surface)
+    return j, c, f_guess, lin
+
+
+# The small computations between the compiled period-map programs are kernels too: run
+# op by op, each of their ~100 operations compiled a program of its own (~30 ms each,
+# ~3 s of a cold `find_periodic_orbit`).
+@orbit_kernel
+def _phase_index(pmap: _PeriodMap, fixed_period: bool, x_guess, t0, args, fix, impact_surface):
+    f_guess = pmap.scene.vector_field(t0, x_guess, args)
     if fixed_period:
-        return jnp.asarray(-1), jnp.asarray(0.0), f_guess, lin
+        return jnp.asarray(-1), jnp.asarray(0.0, x_guess.dtype), f_guess
     if pmap.end_impacts > 0 and pmap.scene.surfaces:
         # Start at an impact: by default fix the coordinate along the surface normal (the
         # paper's ζ1 = 0 for Γ = {x1 = 0}), so that x0 stays on the surface.
-        sol = lin[4]
-        closing = jnp.clip(sol.impact_surface[pmap.end_impacts - 1], 0, None)
+        closing = jnp.clip(impact_surface[pmap.end_impacts - 1], 0, None)
         normals = jnp.stack([
             jax.grad(lambda y, s=s: s.phi(t0, y, args))(x_guess) for s in pmap.scene.surfaces
         ])
@@ -341,7 +351,7 @@ def _phase_condition(pmap: _PeriodMap, x_guess, t0, T_guess, args, fix, fixed_pe
     else:
         j_auto = jnp.argmax(jnp.abs(f_guess))
     j = jnp.where(fix >= 0, fix, j_auto)
-    return j, x_guess[j], f_guess, lin
+    return j, x_guess[j], f_guess
 
 
 def _refine_period(pmap: _PeriodMap, x_guess, t0, T_guess, args, j, c, lin):
@@ -355,18 +365,40 @@ def _refine_period(pmap: _PeriodMap, x_guess, t0, T_guess, args, j, c, lin):
     """
     x_end, _, jac_T, ok, sol = lin[:5]
     if pmap.end_impacts > 0:
-        return jnp.where(ok, sol.t_final - t0, T_guess)
+        return _period_at_impact(ok, sol.t_final, t0, T_guess)
     T = jnp.asarray(T_guess, x_guess.dtype)
     for i in range(3):
         if i:
             x_end, _, jac_T, ok, _ = _linearize(pmap, x_guess, t0, T, args)[:5]
-        slope = jac_T[j]
-        dT = -(x_end[j] - c) / jnp.where(slope == 0, 1.0, slope)
-        dT = jnp.clip(dT, -0.25 * jnp.abs(T), 0.25 * jnp.abs(T))
-        T = jnp.where(ok & jnp.isfinite(dT) & (slope != 0), T + dT, T)
+        T = _period_step(x_end, jac_T, ok, j, c, T)
     return T
 
 
+@orbit_kernel
+def _period_at_impact(ok, t_final, t0, T_guess):
+    return jnp.where(ok, t_final - t0, T_guess)
+
+
+@orbit_kernel
+def _period_step(x_end, jac_T, ok, j, c, T):
+    """One scalar Newton step on x_j(t0 + T) = c, at most a quarter period long."""
+    slope = jac_T[j]
+    dT = -(x_end[j] - c) / jnp.where(slope == 0, 1.0, slope)
+    dT = jnp.clip(dT, -0.25 * jnp.abs(T), 0.25 * jnp.abs(T))
+    return jnp.where(ok & jnp.isfinite(dT) & (slope != 0), T + dT, T)
+
+
+@orbit_kernel
+def _solution_point(fixed_period: bool, value, y0, T_guess, j, c):
+    """(x0, T, finite) from Newton's value: a diverged solve hands back its start, never NaN."""
+    finite_y = jnp.all(jnp.isfinite(lax.stop_gradient(value)))
+    y = jnp.where(finite_y, value, y0)
+    if fixed_period:
+        return y, T_guess, finite_y
+    return _snap(y[1:], j, c), y[0], finite_y
+
+
+@orbit_kernel
 def _assess(pmap, fixed_period, n, j, fix, f_guess, x_guess, x0, period, t0, args, converged,
             finite_y, lin, requested_impacts):
     """Diagnostics at the result and the status, most specific reason first."""
@@ -442,8 +474,14 @@ _GUESS_SLACK = 1e-9 / (FLOOR_ULPS * float(np.finfo(np.float64).eps))
 
 def _on_surfaces(scene: Scene, t0, x0, args) -> list[int]:
     """Indices of the surfaces whose zero set contains the guess x0 (see `_GUESS_SLACK`)."""
-    t, x = jnp.asarray(t0, float), jnp.asarray(x0, float)
-    return [i for i, s in enumerate(scene.surfaces) if bool(on_surface(s.phi, t, x, args, _GUESS_SLACK))]
+    on = np.asarray(_surfaces_containing(scene, jnp.asarray(t0, float), jnp.asarray(x0, float), args))
+    return [int(i) for i in np.flatnonzero(on)]
+
+
+@orbit_kernel
+def _surfaces_containing(scene: Scene, t, x, args):
+    return jnp.stack([on_surface(s.phi, t, x, args, _GUESS_SLACK) for s in scene.surfaces]
+                     + [jnp.array(False)])[:-1]
 
 
 def _detect_start(pmap: _PeriodMap, x0, t0, period, args) -> tuple[bool, int]:
@@ -621,13 +659,7 @@ def find_periodic_orbit(
         dataclasses.replace(pmap, adjoint=adjoint), fixed_period, root_finder, int(max_steps),
         y0, t0, T_guess, args, j, c,
     )
-    # A diverged solve hands back its starting point (with the diagnostics there), never NaN.
-    finite_y = jnp.all(jnp.isfinite(lax.stop_gradient(value)))
-    y = jnp.where(finite_y, value, y0)
-    if fixed_period:
-        x0, T = y, T_guess
-    else:
-        x0, T = _snap(y[1:], j, c), y[0]
+    x0, T, finite_y = _solution_point(fixed_period, value, y0, T_guess, j, c)
     x_const, T_const = lax.stop_gradient((x0, T))
     lin = _linearize(pmap, x_const, t0, T_const, args_const)
     out = _assess(pmap, fixed_period, n, j, fix_arg, f_guess, x_guess, x_const, T_const, t0,

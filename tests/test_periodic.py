@@ -6,7 +6,9 @@ compiled period map is built once for the whole module.
 
 import math
 
+import diffrax
 import jax
+import jax.extend
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -146,6 +148,44 @@ def test_orbits_of_other_sizes_share_one_compiled_newton():
         newton_atols.append(orbit.settings.newton_atol)
     assert newton_atols[0] != newton_atols[1]
     assert programs[1] == programs[0]
+
+
+def _count_loops(jaxpr) -> int:
+    """`while` loops in a jaxpr, nested ones included."""
+    count = 0
+    for eqn in jaxpr.eqns:
+        count += eqn.primitive.name == "while"
+        for sub in jax.extend.core.jaxprs_in_params(eqn.params):
+            count += _count_loops(sub)
+    return count
+
+
+@pytest.mark.slow  # (five compilations of the loop; Newton's use of it is in the default tests)
+def test_newton_residual_linearizes_in_one_pass():
+    """Newton linearizes its residual with `jax.linearize`, which runs a while loop twice
+    (primal, then the whole loop again for the tangents). `jacobian_in_one_pass` gives the
+    same value and derivatives (in y, in args, forward and reverse) from one pass."""
+    from grazejax._orbit_common import jacobian_in_one_pass
+
+    def residual(y, a):
+        x_end = gj.simulate(EX1DOF, y, 0.0, 3.0, a, max_impacts=4, adjoint=diffrax.DirectAdjoint(),
+                            **TOL).x_final
+        return x_end - y
+
+    one_pass = jacobian_in_one_pass(residual)
+    y, a = jnp.array([0.1, 0.5]), ex.ex1dof_args(0.2)
+    np.testing.assert_array_equal(one_pass(y, a), residual(y, a))
+    forward = jax.jacfwd(one_pass)(y, a)
+    np.testing.assert_allclose(forward, jax.jacfwd(residual)(y, a), rtol=1e-13, atol=1e-14)
+    np.testing.assert_allclose(jax.jacrev(one_pass)(y, a), forward, rtol=1e-13, atol=1e-14)
+    mu_derivative = [jax.jacfwd(lambda mu, f=f: f(y, ex.ex1dof_args(mu)))(0.2)
+                     for f in (one_pass, residual)]
+    np.testing.assert_allclose(*mu_derivative, rtol=1e-13, atol=1e-14)
+
+    def linearized(f):
+        return jax.make_jaxpr(lambda y: jax.linearize(lambda z: f(z, a), y)[1](y))(y).jaxpr
+
+    assert _count_loops(linearized(one_pass)) < _count_loops(linearized(residual))
 
 
 # --------------------------------------------------------------------------------------
