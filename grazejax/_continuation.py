@@ -37,7 +37,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._geometry import gap_rates
 from ._orbit_common import (
     SolverSettings,
     _a5,
@@ -52,6 +51,7 @@ from ._orbit_common import (
     _state_at,
     _step_accepted,
     _write_text,
+    gap_rates_at,
     orbit_kernel,
 )
 from ._periodic import Orbit, OrbitStatus, find_periodic_orbit, orbit_contacts
@@ -357,7 +357,7 @@ def _correct(fam: _Family, Y_pred, tangent, t0, e_j, c, T_fixed, ts_unit):
     speed = math.inf
     for m in range(k):
         phi = fam.pmap.scene.surfaces[int(sol.impact_surface[m])].phi
-        _, rate, _ = gap_rates(phi, fam.pmap.scene.vector_field, sol.impact_times[m],
+        _, rate, _ = gap_rates_at(phi, fam.pmap.scene.vector_field, sol.impact_times[m],
                                sol.impact_pre[m], args)
         speed = min(speed, abs(float(rate)))
     return dict(
@@ -1037,7 +1037,7 @@ def _impacting_family(fam, located, end, args_of, t0, T_fixed, fixed, arrival, d
             period = T if fixed else float(z[0])
             x_pre = jnp.asarray(z[1:])
             # An impact, not a departure: the gap must be closing at θ.
-            _, rate, _ = gap_rates(surface.phi, scene.vector_field, jnp.asarray(theta), x_pre, args)
+            _, rate, _ = gap_rates_at(surface.phi, scene.vector_field, jnp.asarray(theta), x_pre, args)
             if not float(rate) < 0:
                 continue
             x_post = surface.jump(jnp.asarray(theta), x_pre, args)

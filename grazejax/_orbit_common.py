@@ -20,6 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._flow import short_free_flow
+from ._geometry import gap_rates
 from ._scene import Scene
 from ._simulate import simulate
 from ._status import Status
@@ -246,6 +247,14 @@ def _sampled(pmap: _PeriodMap, x0, t0, t1, args, ts):
         max_impacts=pmap.max_impacts, max_steps=pmap.max_solver_steps, direction=1, saveat=ts,
     )
     return sol
+
+
+@orbit_kernel
+def gap_rates_at(gap, field, t, x, args):
+    """`gap_rates` for the host-side diagnostics, as one compiled program per surface: run
+    op by op, each of its nested JVP's operations compiled a program of its own (~1 s of a
+    first continuation)."""
+    return gap_rates(gap, field, t, x, args)
 
 
 def _state_at(pmap: _PeriodMap, x0, t0, t, args):

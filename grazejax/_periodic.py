@@ -65,6 +65,7 @@ from ._orbit_common import (
     _solver_name,
     _state_at,
     _state_scale,
+    gap_rates_at,
     jacobian_in_one_pass,
     orbit_kernel,
 )
@@ -1003,7 +1004,7 @@ def _refine_minimum(pmap, scene, i, x0, t0, t_guess, args, lo, hi):
     """One Newton step on dΦ/dt = 0 from t_guess, with the exact state there."""
     t_guess = float(np.clip(t_guess, lo, hi))
     x = _state_at(pmap, x0, t0, t_guess, args)
-    g, gd, gdd = (float(v) for v in gap_rates(scene.surfaces[i].phi, scene.vector_field, jnp.asarray(t_guess), jnp.asarray(x), args))
+    g, gd, gdd = (float(v) for v in gap_rates_at(scene.surfaces[i].phi, scene.vector_field, jnp.asarray(t_guess), jnp.asarray(x), args))
     if gdd > 0:
         dt = float(np.clip(-gd / gdd, lo - t_guess, hi - t_guess))
         t_min = t_guess + dt
@@ -1035,7 +1036,7 @@ def orbit_contacts(scene: Scene, orbit: Orbit, args=None, *, num_samples: int = 
     for m in range(k):
         i = int(orbit.impact_surface[m])
         pre = np.asarray(orbit.impact_pre[m], float)
-        g, gd, gdd = (float(v) for v in gap_rates(scene.surfaces[i].phi, scene.vector_field, jnp.asarray(times[m]), jnp.asarray(pre), args))
+        g, gd, gdd = (float(v) for v in gap_rates_at(scene.surfaces[i].phi, scene.vector_field, jnp.asarray(times[m]), jnp.asarray(pre), args))
         depth = -gd * gd / (2 * gdd) if gdd > 0 else -math.inf
         rows.append((times[m], pre, i, True, depth, gd, gdd))
     if scene.surfaces:
@@ -1140,7 +1141,7 @@ def _contact_depths(pmap, scene, start, t_start, t_end, contacts, args, window):
         hits = [m for m in range(k) if surfaces[m] == i and abs(times[m] - t_c) <= w]
         if hits:
             m = min(hits, key=lambda m_: abs(times[m_] - t_c))
-            g, gd, gdd = (float(v) for v in gap_rates(
+            g, gd, gdd = (float(v) for v in gap_rates_at(
                 scene.surfaces[i].phi, scene.vector_field, jnp.asarray(times[m]), sol.impact_pre[m], args))
             depths.append(-gd * gd / (2 * gdd) if gdd > 0 else -math.inf)
             impacted.append(True)
