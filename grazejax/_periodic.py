@@ -473,6 +473,16 @@ def _assess(pmap, fixed_period, n, j, fix, f_guess, x_guess, x0, period, t0, arg
 _GUESS_SLACK = 1e-9 / (FLOOR_ULPS * float(np.finfo(np.float64).eps))
 
 
+def _host_float(value) -> float:
+    """A user's root-finder tolerance as a Python float for `SolverSettings`; NaN if traced.
+
+    (Under `jit` the default Newton's tolerances, arrays from `_newton_for`, are tracers
+    too: `float()` of them raised, so `find_periodic_orbit` failed inside `jit`/`vmap`;
+    their settings now come from `newton_tol` and the scale, known on the host.)
+    """
+    return float(value) if is_concrete(value) else math.nan
+
+
 def _on_surfaces(scene: Scene, t0, x0, args) -> list[int]:
     """Indices of the surfaces whose zero set contains the guess x0 (see `_GUESS_SLACK`)."""
     on = np.asarray(_surfaces_containing(scene, jnp.asarray(t0, float), jnp.asarray(x0, float), args))
@@ -667,8 +677,11 @@ def find_periodic_orbit(
                   args_const, converged, finite_y, lin, requested)
     settings = SolverSettings(
         solver=_solver_name(solver), rtol=float(rtol), atol=atol_used,
-        newton_rtol=float(getattr(root_finder, "rtol", math.nan)),
-        newton_atol=float(getattr(root_finder, "atol", math.nan)), max_steps=int(max_steps),
+        newton_rtol=(_host_float(getattr(root_finder, "rtol", math.nan)) if user_root_finder
+                     else float(newton_tol)),
+        newton_atol=(_host_float(getattr(root_finder, "atol", math.nan)) if user_root_finder
+                     else float(newton_tol) * scale),
+        max_steps=int(max_steps),
         max_solver_steps=int(max_solver_steps), max_impacts=int(max_impacts), state_scale=scale,
     )
     orbit = Orbit(x0=x0, t0=t0, period=T, num_steps=num_steps,

@@ -311,6 +311,26 @@ def test_invalid_arguments_raise_readable_errors():
         jax.jit(lambda a: find_periodic_orbit(EX1DOF, [2.0, 0.0], 6.0, a).period)(ex.ex1dof_args(0.0))
 
 
+@pytest.mark.slow  # (compiles the whole solve, batched, as one program)
+def test_solves_under_jit_and_vmap_match_one_by_one():
+    """The docstring's promise: inside `jit`/`vmap` (with start_at_impact and num_impacts
+    passed) nothing raises, and each lane is the orbit a single solve finds. (The default
+    Newton's tolerances are arrays, traced inside jit: `float()` of them for the settings
+    raised ConcretizationTypeError.) Agreement to Newton's tolerance (1e-8): two solutions
+    of the same equations, each within it."""
+    def solve(mu):
+        return find_periodic_orbit(EX1DOF, jnp.array([0.0, 0.04]), 6.2, ex.ex1dof_args(mu),
+                                   start_at_impact=True, num_impacts=1, **TOL)
+
+    mus = jnp.array([0.15, 0.2, 0.25])
+    batched = jax.jit(jax.vmap(lambda mu: (lambda o: (o.period, o.x0, o.status))(solve(mu))))(mus)
+    for k, mu in enumerate(mus):
+        one = solve(float(mu))
+        assert int(batched[2][k]) == int(one.status) == OrbitStatus.SUCCESS
+        np.testing.assert_allclose(batched[0][k], one.period, rtol=1e-8)
+        np.testing.assert_allclose(batched[1][k], one.x0, rtol=1e-8, atol=1e-8 * 0.04)
+
+
 # --------------------------------------------------------------------------------------
 # Stable multipliers
 # --------------------------------------------------------------------------------------
