@@ -485,14 +485,13 @@ def _host_float(value) -> float:
 
 def _on_surfaces(scene: Scene, t0, x0, args) -> list[int]:
     """Indices of the surfaces whose zero set contains the guess x0 (see `_GUESS_SLACK`)."""
-    on = np.asarray(_surfaces_containing(scene, jnp.asarray(t0, float), jnp.asarray(x0, float), args))
-    return [int(i) for i in np.flatnonzero(on)]
+    on = _surfaces_containing(scene, jnp.asarray(t0, float), jnp.asarray(x0, float), args)
+    return [i for i, on_i in enumerate(on) if bool(on_i)]
 
 
 @orbit_kernel
 def _surfaces_containing(scene: Scene, t, x, args):
-    return jnp.stack([on_surface(s.phi, t, x, args, _GUESS_SLACK) for s in scene.surfaces]
-                     + [jnp.array(False)])[:-1]
+    return [on_surface(s.phi, t, x, args, _GUESS_SLACK) for s in scene.surfaces]
 
 
 def _detect_start(pmap: _PeriodMap, x0, t0, period, args) -> tuple[bool, int]:
