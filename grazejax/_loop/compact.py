@@ -150,7 +150,12 @@ def _compacted(phase, nothing, batch, need, operands, axes):
             )
 
         return lax.cond(count > 0, every_lane, lambda: out)
-    return lax.while_loop(more, one_round, (jnp.array(0), out))[1]
+    # Only when some lane needs the phase: the loop's carry (every lane's output) is copied
+    # in whenever the loop is entered, even for zero rounds (in-phase sweeps, most
+    # iterations).
+    return lax.cond(
+        count > 0, lambda: lax.while_loop(more, one_round, (jnp.array(0), out))[1], lambda: out
+    )
 
 
 def _hoisted(fn, example, slot):
