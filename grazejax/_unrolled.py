@@ -48,8 +48,8 @@ def _weighted_sum(weights, ks):
     (`tests/hard/energy_drift.py`, AMD EPYC with AVX-512).
     """
     weights = np.asarray(weights)
-    pairs = zip(weights, ks[: len(weights)], strict=True)
-    terms = [jnp.asarray(w, k.dtype) * k for w, k in pairs if w != 0]
+    weighted = zip(weights, ks[: len(weights)], strict=True)
+    terms = [jnp.asarray(w, k.dtype) * k for w, k in weighted if w != 0]
     if not terms:
         return None
     while len(terms) > 1:
