@@ -143,19 +143,19 @@ def _compacted(phase, nothing, batch, need, operands, axes):
 
     if width == batch:
         # A small batch: one call over every lane, no gathers.
-        def every_lane():
+        def run_phase():
             return jax.tree.map(
                 lambda r, o: jnp.where(need.reshape((batch,) + (1,) * (r.ndim - 1)), r, o),
                 lane_phase(operands, batch), out,
             )
+    else:
+        def run_phase():
+            return lax.while_loop(more, one_round, (jnp.array(0), out))[1]
 
-        return lax.cond(count > 0, every_lane, lambda: out)
     # Only when some lane needs the phase: the loop's carry (every lane's output) is copied
     # in whenever the loop is entered, even for zero rounds (in-phase sweeps, most
     # iterations).
-    return lax.cond(
-        count > 0, lambda: lax.while_loop(more, one_round, (jnp.array(0), out))[1], lambda: out
-    )
+    return lax.cond(count > 0, run_phase, lambda: out)
 
 
 def _hoisted(fn, example, slot):
