@@ -117,8 +117,14 @@ def _newton_for(newton_tol, scale):
     """
     import optimistix as optx
 
-    return optx.Newton(rtol=jnp.asarray(newton_tol, float),
-                       atol=jnp.asarray(newton_tol, float) * scale)
+    rtol, atol = _newton_tolerances(newton_tol, scale)
+    return optx.Newton(rtol=jnp.asarray(rtol, float), atol=jnp.asarray(atol, float))
+
+
+def _newton_tolerances(newton_tol, scale):
+    """The default Newton's `(rtol, atol)`: `newton_tol` relative, `newton_tol · scale`
+    absolute (host values where the inputs are: `find_periodic_orbit` reports them)."""
+    return newton_tol, newton_tol * scale
 
 
 def _atol_for(orbit, rtol, atol) -> float:

@@ -59,6 +59,7 @@ from ._orbit_common import (
     _atol_for,
     _linearize,
     _newton_for,
+    _newton_tolerances,
     _PeriodMap,
     _run,
     _sampled,
@@ -674,12 +675,14 @@ def find_periodic_orbit(
     lin = _linearize(pmap, x_const, t0, T_const, args_const)
     out = _assess(pmap, fixed_period, n, j, fix_arg, f_guess, x_guess, x_const, T_const, t0,
                   args_const, converged, finite_y, lin, requested)
+    if user_root_finder:
+        newton_rtol, newton_atol = (_host_float(getattr(root_finder, name, math.nan))
+                                    for name in ("rtol", "atol"))
+    else:
+        newton_rtol, newton_atol = map(float, _newton_tolerances(newton_tol, scale))
     settings = SolverSettings(
         solver=_solver_name(solver), rtol=float(rtol), atol=atol_used,
-        newton_rtol=(_host_float(getattr(root_finder, "rtol", math.nan)) if user_root_finder
-                     else float(newton_tol)),
-        newton_atol=(_host_float(getattr(root_finder, "atol", math.nan)) if user_root_finder
-                     else float(newton_tol) * scale),
+        newton_rtol=newton_rtol, newton_atol=newton_atol,
         max_steps=int(max_steps),
         max_solver_steps=int(max_solver_steps), max_impacts=int(max_impacts), state_scale=scale,
     )
