@@ -76,7 +76,7 @@ def step_ends(rate, sa, sb, restart, g_a, g_b) -> StepEnds:
 
     A restart step is judged by G(sa) = ġ(sa), except for a *tangential lift-off*: after a
     jump that leaves ġ = 0 to round-off (restitution 0 on a moving table), G(sa) reads 0 or
-    −1 ulp although the flight rises (ġ > 0 just after sa) — and a return through Φ = 0 within the same
+    ±1 ulp although the flight rises (ġ > 0 just after sa) — and a return through Φ = 0 within the same
     step was missed: the ball fell through the table with SUCCESS (found by the
     chatter–stick–release campaign at e = 0, Aω² = 1.25 g, ω = 8). Such a step is judged
     at s_lift = sa + 2⁻²⁰(sb − sa) (`LIFT_FRACTION`) instead, where G ≈ ġ + g̈·(s − sa)/2
@@ -92,7 +92,12 @@ def step_ends(rate, sa, sb, restart, g_a, g_b) -> StepEnds:
     # (guarded(g, sa, restart)(s_lift), from g's value there)
     g_lift = jnp.where(restart, safe_divide(g_at_lift, lifted, lifted > 0), g_at_lift)
     rising = slope_lift > 0
-    lifting = restart & (slope_a <= 0) & rising & (g_lift > 0) & (s_lift > sa)
+    # ġ(sa) is round-off when G at least doubles over the first 2⁻²⁰ of the step; it may
+    # read +1 ulp as well as −1 (the rate from the state's own stage reads +2e-17 where
+    # the interpolant's read −1e-16 on the table above: a root of G in its round-off at
+    # sa + 2e-16 was taken for a return, and the run ended in ZENO).
+    round_off = slope_a <= 0.5 * slope_lift
+    lifting = restart & round_off & rising & (g_lift > 0) & (s_lift > sa)
     g_start = jnp.where(restart, jnp.where(lifting, g_lift, slope_a), g_a)
     # A lift-off rises from sa: no interior minimum of g is looked for from there (a
     # round-off slope of −1 ulp would otherwise make a "dip" of depth 0 at sa, a false γ

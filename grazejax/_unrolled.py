@@ -86,6 +86,14 @@ class UnrolledERK(diffrax.AbstractAdaptiveSolver):
     def error_order(self, terms):
         return self.solver.error_order(terms)
 
+    @property
+    def end_stage(self):
+        """Index in the dense output's stages of h·f(t₁, y₁), the FSAL stage (None if the
+        tableau has none). With the first stage, h·f(t₀, y₀), it gives the state's rate at
+        both ends of the step without evaluating the interpolant."""
+        tableau = type(self.solver).tableau
+        return len(tableau.c) if tableau.fsal else None
+
     def init(self, terms, t0, t1, y0, args):
         return self.solver.init(terms, t0, t1, y0, args)
 
@@ -126,6 +134,6 @@ class UnrolledERK(diffrax.AbstractAdaptiveSolver):
         y_error = _weighted_sum(tableau.b_error, ks)
         if y_error is None:
             y_error = jnp.zeros_like(y0)
-        dense_info = dict(y0=y0, y1=y1, k=jnp.stack(ks))
         new_state = None if solver_state is None else (jnp.array(False), fi)
+        dense_info = dict(y0=y0, y1=y1, k=jnp.stack(ks))
         return y1, y_error, dense_info, new_state, diffrax.RESULTS.successful

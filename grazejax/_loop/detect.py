@@ -87,6 +87,7 @@ def _step_ends(ctx: LoopContext, c: LoopState, step: Step):
     """Per piece and side: the `StepEnds` of the gap along the step's interpolant."""
     sa, sb, y1, args_ = step.sa, step.sb, step.y1, c.args
     along = _at_fraction(step.interp)
+    at_ends = _rates_at_ends(ctx, c, step)
     ends = []
     for i, piece in enumerate(ctx.pieces):
         row = []
@@ -96,12 +97,33 @@ def _step_ends(ctx: LoopContext, c: LoopState, step: Step):
                 return sign * piece.gap(ctx.abs_time(s, c.t_hi, c.t_lo), y, args_)
 
             def rate(theta, gap=gap):
-                s, y, dy_ds = along(theta, sa, sb)
+                # (Inside the step only the lift-off point of `step_ends` is read. Under a
+                # `cond` on any lane restarting it cost more than it saved.)
+                s, y, dy_ds = at_ends[theta] if theta in at_ends else along(theta, sa, sb)
                 return jax.jvp(gap, (s, y), (jnp.ones_like(s), dy_ds))
 
             row.append(step_ends(rate, sa, sb, c.restart[i], gap(sa, c.y), gap(sb, y1)))
         ends.append(row)
     return ends
+
+
+def _rates_at_ends(ctx: LoopContext, c: LoopState, step: Step):
+    """`{θ: (s, y, dy/ds)}` at the step's ends, from the solver's own states and stages.
+
+    An explicit Runge–Kutta step's first stage is h·f(sa, y(sa)), and an FSAL tableau's last
+    is h·f(sb, y(sb)): the rates at the ends need no interpolant. Evaluated on the
+    interpolant, each was a contraction of all the stages (a dot that XLA's CPU backend
+    does not fuse) in every step of every lane (grazejax issue 14). For other solvers
+    the interpolant's ends are used, as before.
+    """
+    end_stage = getattr(ctx.solver, "end_stage", None)
+    k = step.stages
+    if end_stage is None or not isinstance(k, jax.Array) or k.ndim != 2:
+        return {}
+    h = step.sb - step.sa
+    # (an empty step has no slope, as on the interpolant)
+    rate_of = lambda stage: safe_divide(stage, h, h != 0)  # noqa: E731
+    return {0.0: (step.sa, c.y, rate_of(k[0])), 1.0: (step.sb, step.y1, rate_of(k[end_stage]))}
 
 
 def _at_fraction(interp):
@@ -116,10 +138,10 @@ def _at_fraction(interp):
     1e-12, 2048 lanes) went from 214 to 148 µs per trajectory in phase and from 283 to
     171 at random phases (grazejax issue 14). Mathematically the same values
     (P'(s) = dP/dθ / (sb − sa)); the rounding differs by ulps. Interpolations from
-    outside Diffrax are evaluated as before (their `evaluate` might not rescale by their
-    ends).
+    outside Diffrax and grazejax (`Vern9`'s) are evaluated as before (their `evaluate`
+    might not rescale by their ends).
     """
-    if not type(interp).__module__.startswith("diffrax."):
+    if not type(interp).__module__.startswith(("diffrax.", "grazejax.")):
 
         def traced(theta, sa, sb):
             s = _fraction_time(theta, sa, sb)

@@ -23,6 +23,7 @@ class Step(NamedTuple):
     s_end: RealScalar  # local time of t1
     y1: State
     interp: diffrax.AbstractLocalInterpolation  # the step's dense output, in the local clock
+    stages: Any  # the Runge–Kutta stages h·f (`dense_info["k"]`), or None
     keep: BoolScalar  # accepted (and finite)
     finite: BoolScalar  # y1 is finite
     h_next: RealScalar
@@ -64,7 +65,10 @@ def take_step(ctx: LoopContext, c: LoopState) -> Step:
     keep = keep & finite1
     h_next = jax.lax.stop_gradient(tnext - jnp.where(keep, sb, sa))
     interp = solver.interpolation_cls(t0=sa, t1=sb, **dense_info)
-    return Step(sa, sb, s_end, y1, interp, keep, finite1, h_next, solver_state1, controller_state1)
+    stages = dense_info.get("k")
+    return Step(
+        sa, sb, s_end, y1, interp, stages, keep, finite1, h_next, solver_state1, controller_state1
+    )
 
 
 def equilibrium_probe(ctx: LoopContext, sa, sb, y0, y1, y_error, targs):
