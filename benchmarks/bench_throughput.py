@@ -14,7 +14,7 @@ table takes, per tool, the cheapest configuration that reaches it (work-precisio
 XLA's and heyoka's thread pools cannot use a second one; `--all-cores` lifts that).
 
 - grazejax: `jax.jit(jax.vmap(simulate))` over all lanes (`sweep`'s `balance="none"`),
-  Tsit5 and Dopri8.
+  Tsit5, Dopri8 and `grazejax.Vern9`.
 - heyoka, two configurations, both measured because the fastest must be the one compared:
   the batch (SIMD) integrator with jumps applied between `propagate_until` calls
   (`peers.HeyokaBatchRunner`) and the scalar integrator with the jump in an event callback
@@ -180,6 +180,8 @@ def main(argv=None):
     import diffrax
     import jax
 
+    import grazejax as gj
+
     jax.config.update("jax_enable_x64", True)
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
     import bench_phases
@@ -198,6 +200,8 @@ def main(argv=None):
         # tolerance for both.
         configs += [("Dopri8", diffrax.Dopri8(), t)
                     for t in (1e-6, 1e-8, 1e-10, 5e-12, 2e-12, 1e-12)]
+        # Verner's 9(8) pair: fewer steps than Dopri8 at tight tolerances, more stages each.
+        configs += [("Vern9", gj.Vern9(), t) for t in (1e-10, 1e-11, 5e-12, 2e-12)]
         hey_tols = (1e-6, 1e-8, 5e-10, 2e-10, 1e-10, 5e-11, 2e-11, 1e-12, 1e-15)
         scipy_tols = (1e-7, 1e-10, 1e-12)
     x0s = bench_phases.starts(lanes)

@@ -70,5 +70,6 @@ from ._solution import Solution as Solution
 from ._status import ImpactKind as ImpactKind
 from ._status import Status as Status
 from ._sweep import sweep as sweep
+from ._vern9 import Vern9 as Vern9
 
 __version__ = "0.1.0"

@@ -135,5 +135,9 @@ class UnrolledERK(diffrax.AbstractAdaptiveSolver):
         if y_error is None:
             y_error = jnp.zeros_like(y0)
         new_state = None if solver_state is None else (jnp.array(False), fi)
+        # Stages that only the dense output reads (`Vern9`'s interpolant).
+        for ci, row in getattr(type(self.solver), "dense_stages", ()):
+            yi = _plus(y0, row, ks)
+            ks.append(terms.prod(terms.vf(t0 + float(ci) * dt, yi, args), dt))
         dense_info = dict(y0=y0, y1=y1, k=jnp.stack(ks))
         return y1, y_error, dense_info, new_state, diffrax.RESULTS.successful

@@ -1,7 +1,7 @@
 """The step-end gap rates of the event test: the dense output at a constant fraction θ of
 the step (weights folded at compile time) against the jvp through `evaluate` at the traced
 time, for Diffrax's solvers (explicit, wrapped by `UnrolledERK` as `simulate` does, and
-implicit); the rates at the ends read from the stages; the lift-off test."""
+implicit) and `Vern9`; the rates at the ends read from the stages; the lift-off test."""
 
 from types import SimpleNamespace
 
@@ -11,6 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+import grazejax as gj
 from grazejax._events import LIFT_FRACTION, step_ends
 from grazejax._loop.detect import _at_fraction, _fraction_time, _rates_at_ends
 from grazejax._unrolled import UnrolledERK, unrollable
@@ -24,6 +25,7 @@ SOLVERS = {
     "Bosh3": diffrax.Bosh3(),
     "Heun": diffrax.Heun(),
     "Euler": diffrax.Euler(),
+    "Vern9": gj.Vern9(),
     # (its root finder given tolerances, as `simulate` gives it the controller's)
     "Kvaerno5": diffrax.Kvaerno5(root_finder=diffrax.VeryChord(rtol=1e-10, atol=1e-10)),
 }
@@ -92,7 +94,7 @@ def test_interpolations_from_elsewhere_take_the_traced_path():
     assert float(s) == 1.5 and float(y[0]) == 3.0 and float(dy[0]) == 2.0
 
 
-@pytest.mark.parametrize("name", ["Tsit5", "Dopri5", "Dopri8"])
+@pytest.mark.parametrize("name", ["Tsit5", "Dopri5", "Dopri8", "Vern9"])
 def test_rates_at_the_ends_are_the_field_at_the_states(name):
     """FSAL tableaus: the rates at θ = 0 and 1 come from the first and the FSAL stage, h·f
     divided by h: the vector field at the step's own states to an ulp, and the
