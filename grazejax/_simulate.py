@@ -91,8 +91,9 @@ def simulate(
     - `args`: a pytree of parameters passed to every scene function. Vary numbers here:
       changing them never recompiles.
     - `solver`: a Diffrax solver (default `diffrax.Tsit5()`). Tested: `Tsit5`, `Dopri5`,
-      `Dopri8`, and the implicit `Kvaerno5` for stiff flows.
-    - `rtol`, `atol`: tolerances of the default `diffrax.PIDController`.
+      `Dopri8`, `grazejax.Vern9`, and the implicit `Kvaerno5` for stiff flows.
+    - `rtol`, `atol`: tolerances of the default step-size controller (Diffrax's
+      `PIDController` with its default coefficients).
     - `stepsize_controller`: an adaptive Diffrax controller (overrides `rtol`/`atol`).
     - `dt0`: first step size (default: chosen by the controller).
     - `max_impacts`: size of the impact log; the run stops (status `MAX_IMPACTS`) right

@@ -1,0 +1,78 @@
+"""The loop's default step-size controller (`_stepping.IntegralController`) against
+Diffrax's `PIDController` with the same tolerances: the same decisions, the next step to
+an ulp or so, including failed steps (error 0, inf) and NaN candidates."""
+
+import diffrax
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import grazejax as gj
+from grazejax import examples as ex
+from grazejax._stepping import IntegralController, loop_controller
+
+EPS = float(np.finfo(np.float64).eps)
+
+
+@pytest.mark.parametrize("case", ["random", "zero error", "infinite error", "nan candidate"])
+def test_same_decisions_as_diffrax(case):
+    rng = np.random.default_rng(["random", "zero error", "infinite error", "nan candidate"].index(case))
+    for _ in range(40):
+        rtol = 10.0 ** rng.uniform(-13, -4)
+        atol = rtol * 10.0 ** rng.uniform(-3, 1)
+        order = int(rng.choice([4, 5, 8, 9]))
+        y0 = jnp.asarray(rng.normal(size=3))
+        y1 = y0 + 0.1 * jnp.asarray(rng.normal(size=3))
+        error = jnp.asarray(rng.normal(size=3)) * atol * 10.0 ** rng.uniform(-4, 3)
+        if case == "zero error":
+            error = jnp.zeros(3)
+        elif case == "infinite error":
+            error = jnp.full(3, jnp.inf)
+        elif case == "nan candidate":
+            y1 = y1.at[0].set(jnp.nan)
+        state = (jnp.asarray(rng.uniform(0.1, 3)), jnp.asarray(rng.uniform(0.1, 3)),
+                 jnp.asarray(False))
+        theirs = diffrax.PIDController(rtol=rtol, atol=atol).adapt_step_size(
+            0.3, 0.5, y0, y1, None, error, order, state)
+        ours = IntegralController(rtol=rtol, atol=atol).adapt_step_size(
+            0.3, 0.5, y0, y1, None, error, order, state)
+        assert bool(ours[0]) == bool(theirs[0])
+        assert float(ours[1]) == float(theirs[1])
+        np.testing.assert_allclose(float(ours[2]), float(theirs[2]), rtol=8 * EPS)
+        for a, b in zip(jax.tree.leaves(ours[4]), jax.tree.leaves(theirs[4]), strict=True):
+            np.testing.assert_array_equal(a, b)
+
+
+def test_other_settings_run_diffrax_own_rule():
+    """A PID with other coefficients or step bounds is Diffrax's code path, unchanged."""
+    y0, y1, error = jnp.ones(2), jnp.ones(2) * 1.1, jnp.full(2, 1e-9)
+    state = (jnp.asarray(1.0), jnp.asarray(1.0), jnp.asarray(False))
+    for kw in (dict(pcoeff=0.3, icoeff=0.4), dict(dtmax=0.05)):
+        ours = IntegralController(rtol=1e-8, atol=1e-8, **kw).adapt_step_size(
+            0.0, 0.1, y0, y1, None, error, 5, state)
+        theirs = diffrax.PIDController(rtol=1e-8, atol=1e-8, **kw).adapt_step_size(
+            0.0, 0.1, y0, y1, None, error, 5, state)
+        assert float(ours[2]) == float(theirs[2])
+
+
+def test_default_is_the_integral_controller_and_a_given_one_is_kept():
+    solver = diffrax.Tsit5()
+    default = loop_controller(None, solver, rtol=1e-8, atol=1e-9, dt0=None, has_error_estimate=True)
+    assert isinstance(default, IntegralController)
+    assert (default.rtol, default.atol) == (1e-8, 1e-9)
+    given = diffrax.PIDController(rtol=1e-6, atol=1e-6, pcoeff=0.2, icoeff=0.5)
+    kept = loop_controller(given, solver, rtol=1e-8, atol=1e-9, dt0=None, has_error_estimate=True)
+    assert type(kept) is diffrax.PIDController and kept.pcoeff == 0.2
+
+
+def test_runs_match_diffrax_controller_to_tolerance():
+    """A whole run with the default against one with Diffrax's controller: the same steps,
+    impact times within the tolerance's reach."""
+    args, x0 = ex.ex1dof_args(0.2), jnp.array([0.0, 0.04])
+    kw = dict(rtol=1e-10, atol=1e-10, max_impacts=5, solver=diffrax.Dopri8())
+    ours = gj.simulate(ex.ex1dof(), x0, 0.0, 40.0, args, **kw)
+    theirs = gj.simulate(ex.ex1dof(), x0, 0.0, 40.0, args,
+                         stepsize_controller=diffrax.PIDController(rtol=1e-10, atol=1e-10), **kw)
+    assert int(ours.num_steps) == int(theirs.num_steps)
+    np.testing.assert_allclose(ours.impact_times, theirs.impact_times, rtol=0, atol=1e-11)
