@@ -53,7 +53,9 @@ class IntegralController(diffrax.PIDController):
                 t0, t1, y0, y1_candidate, args, y_error, error_order, controller_state
             )
         inv_error, prev_inv_error, at_dtmin = controller_state
-        order = self._get_error_order(error_order)
+        order = error_order if self.error_order is None else self.error_order
+        if order is None:  # (the loop always knows its solver's order)
+            raise ValueError("pass PIDController(..., error_order=...): the solver has none")
         # Error relative to atol + rtol·max(|y0|, |y1|), a NaN candidate read as y0.
         y1 = jnp.where(jnp.isnan(y1_candidate).any(), y0, y1_candidate)
         scale = self.atol + jnp.maximum(jnp.abs(y0), jnp.abs(y1)) * self.rtol
