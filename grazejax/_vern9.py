@@ -32,6 +32,7 @@ import diffrax
 import jax.numpy as jnp
 import numpy as np
 
+from ._roots import safe_divide
 from ._unrolled import UnrolledERK
 
 _C = (  # nodes c_2 … c_21 (c_1 = 0)
@@ -132,17 +133,17 @@ class _Vern9Interpolation(diffrax.AbstractLocalInterpolation):
         if t1 is not None:
             return self.evaluate(t1) - self.evaluate(t0)
         h = self.t1 - self.t0
-        theta = jnp.where(h == 0, 0.0, (t0 - self.t0) / jnp.where(h == 0, 1.0, h))
-        weights = theta * jnp.asarray(_WEIGHTS_AT_END, theta.dtype) + theta * (1 - theta) * (
-            jnp.polyval(jnp.asarray(_Q_DESCENDING, theta.dtype).T, theta)
-        )
+        theta = safe_divide(t0 - self.t0, h, h != 0)
         # Σᵢ wᵢ(θ) = θ exactly, so y(θ) = y₀ + θ k₁ + Σᵢ₌₂ wᵢ(θ)(kᵢ − k₁): the weights reach
         # ~1e3 and cancel over stages that differ by O(h²) only; summed over the
-        # differences, their rounding scales with h²|f'| rather than h|f|.
+        # differences, their rounding scales with h²|f'| rather than h|f|. (w₁ is not
+        # needed.)
+        weights = theta * jnp.asarray(_WEIGHTS_AT_END[1:], theta.dtype) + theta * (1 - theta) * (
+            jnp.polyval(jnp.asarray(_Q_DESCENDING[1:], theta.dtype).T, theta)
+        )
         k = self.k
-        weights = weights.astype(k.dtype)
         return self.y0 + theta.astype(k.dtype) * k[0] + jnp.tensordot(
-            weights[1:], k[1:] - k[0], axes=1
+            weights.astype(k.dtype), k[1:] - k[0], axes=1
         )
 
 
