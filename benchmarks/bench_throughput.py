@@ -13,8 +13,9 @@ table takes, per tool, the cheapest configuration that reaches it (work-precisio
 µs per trajectory on **one core** (the process is pinned to one CPU before JAX starts, so
 XLA's and heyoka's thread pools cannot use a second one; `--all-cores` lifts that).
 
-- grazejax: `jax.jit(jax.vmap(simulate))` over all lanes (`sweep`'s `balance="none"`),
-  Tsit5, Dopri8 and `grazejax.Vern9`.
+- grazejax: `jax.jit(jax.vmap(simulate), compiler_options=gj.compiler_options())` over all
+  lanes, as `sweep` compiles it with `balance="none"` (on a CPU with AVX-512 the options
+  ask XLA for 512-bit vectors), Tsit5, Dopri8 and `grazejax.Vern9`.
 - heyoka, two configurations, both measured because the fastest must be the one compared:
   the batch (SIMD) integrator with jumps applied between `propagate_until` calls
   (`peers.HeyokaBatchRunner`) and the scalar integrator with the jump in an event callback

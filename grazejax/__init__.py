@@ -8,6 +8,7 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 
+from ._compiler import compiler_options as compiler_options
 from ._conditions import ConditionReport as ConditionReport
 from ._conditions import ConditionResult as ConditionResult
 from ._conditions import check_conditions as check_conditions

@@ -53,6 +53,7 @@ import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
 from ._adjoint import loop_kinds
+from ._compiler import single_run_jit
 from ._flow import flight_kwargs, free_flow
 from ._geometry import boundary_tol, closed_piece, gap_rates, inverse_jump, on_piece
 from ._roots import safe_divide
@@ -485,7 +486,7 @@ def _prepare_run(scene, x0, t0, t1, args, wrt, kw):
     return _float_array(x0), _float_array(t0), _float_array(t1), _args_arrays(args), kw
 
 
-@eqx.filter_jit
+@single_run_jit
 def _flow_jacobian_impl(scene, x0, t0, t1, args, wrt, kw):
     def run(x0_, args_):
         sol = simulate(scene, x0_, t0, t1, args_, **kw)
@@ -537,7 +538,7 @@ def flow_jacobian(
     return _flow_jacobian_impl(scene, x0, t0, t1, args, wrt, kw)
 
 
-@eqx.filter_jit
+@single_run_jit
 def _scalar_gradient_impl(loss, scene, x0, t0, t1, args, wrt, kw):
     def run(x0_, args_):
         sol = simulate(scene, x0_, t0, t1, args_, **kw)
@@ -624,7 +625,7 @@ def _saltation_core(scene: Scene, i: int, t, x, args) -> Saltation:
     return Saltation(S, x_post, rate, status)
 
 
-_saltation_jit = eqx.filter_jit(_saltation_core)
+_saltation_jit = single_run_jit(_saltation_core)
 
 
 def saltation_matrix(scene: Scene, surface_index: int, t, x_pre, args=None) -> Saltation:
@@ -702,7 +703,7 @@ def _classify_core(scene: Scene, i: int, t, x, args, rtol) -> PointType:
     return PointType(kind, on_s, on_i, on_boundary, rate, normal, axial, status)
 
 
-_classify_jit = eqx.filter_jit(_classify_core)
+_classify_jit = single_run_jit(_classify_core)
 
 
 def classify_point(
@@ -832,7 +833,7 @@ def _analyse_core(scene, i, t, x, args, lookback, horizon, kw):
     return meeting, WMap(value, zero(w_jac), tau, x_meet, kind, met, status)
 
 
-_analyse_jit = eqx.filter_jit(_analyse_core)
+_analyse_jit = single_run_jit(_analyse_core)
 
 
 def meeting_time(
@@ -926,7 +927,7 @@ def w_map(
     return result
 
 
-@eqx.filter_jit
+@single_run_jit
 def _closed_form_impl(scene, i, t, x, tau, args, kw):
     surface = scene.surfaces[i]
     f = scene.vector_field
@@ -1004,7 +1005,7 @@ def _state_size(m: int) -> int:
     return n
 
 
-@eqx.filter_jit
+@single_run_jit
 def _variational_impl(scene, x0, t0, t1, args, kw):
     sol = simulate(scene, x0, t0, t1, args, **kw)
     n = x0.shape[0]
@@ -1279,7 +1280,7 @@ def one_sided_jacobians(
     return OneSidedLinearization(np.asarray(x), v, plus, minus, n1, n2)
 
 
-@eqx.filter_jit
+@single_run_jit
 def _upstream(scene, x, t, window, args, kw):
     return free_flow(scene.vector_field, x, t, t - window, args, kw)
 

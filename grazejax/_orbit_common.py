@@ -19,6 +19,7 @@ import jax.lax as lax
 import jax.numpy as jnp
 import numpy as np
 
+from ._compiler import single_run_jit
 from ._flow import short_free_flow
 from ._geometry import gap_rates
 from ._scene import Scene
@@ -188,7 +189,8 @@ class _PeriodMap(eqx.Module):
 
 
 def orbit_kernel(fn):
-    """`eqx.filter_jit(fn)`, compiled once per configuration whatever the callers pass.
+    """`eqx.filter_jit(fn)`, compiled once per configuration whatever the callers pass, with
+    the options for one trajectory (`_compiler.single_run_jit`).
 
     `jit` keys its programs on weak types too, and the same time or state reached these
     kernels weak-typed from one caller (`jnp.asarray(0.0)`, a Python float's result) and
@@ -196,13 +198,13 @@ def orbit_kernel(fn):
     twice (~5 s each). Weak-typed arrays are made strong first (the orbit code works in
     the float64 its inputs are converted to, so the promotion rules do not change).
     """
-    jitted = eqx.filter_jit(fn)
+    jitted = single_run_jit(fn)
 
     @functools.wraps(fn)
     def call(*args):
         return jitted(*jax.tree.map(_strongly_typed, args))
 
-    call.jitted = jitted  # (tests count its compiled programs)
+    call.single = jitted  # (tests count its compiled programs: `call.single.jitted`)
     return call
 
 

@@ -49,6 +49,7 @@ import optimistix as optx
 from jaxtyping import Array, Bool, Complex, Float, Int
 
 from ._adjoint import loop_kinds
+from ._compiler import single_run_jit
 from ._flow import short_free_flow
 from ._geometry import FLOOR_ULPS, gap_rates, on_surface
 from ._linearize import saltation_matrix
@@ -781,7 +782,7 @@ def _flights_to_impact(pmap_impact: _PeriodMap, starts, t_starts, durations, nud
     return jax.vmap(one)(starts, t_starts, durations, nudges)
 
 
-@eqx.filter_jit
+@single_run_jit
 def _nudge_jacobian(vector_field, t, x, tau, args):
     """x(t + τ) by the free flow (RK4) and its Jacobian."""
     return jax.jacfwd(lambda y: short_free_flow(vector_field, t, y, tau, args), has_aux=False)(x)
@@ -802,7 +803,7 @@ def _nudge_times(durations, period):
     return np.minimum(1e-3 * np.asarray(durations), 1e-3 * period)
 
 
-@eqx.filter_jit
+@single_run_jit
 def _traces(scene: Scene, ts, xs, args):
     f = scene.vector_field
     return jax.vmap(lambda t, x: jnp.trace(jax.jacfwd(lambda y: f(t, y, args))(x)))(ts, xs)
@@ -1001,7 +1002,7 @@ class Contacts(eqx.Module):
         return np.abs(np.asarray(self.depth)) <= tol
 
 
-@eqx.filter_jit
+@single_run_jit
 def _gap_table(scene: Scene, ts, xs, args):
     """Φ_i, dΦ_i/dt, d²Φ_i/dt² and `where_i` at many (t, x), for every surface."""
     rows = []

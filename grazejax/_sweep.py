@@ -40,6 +40,7 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from ._adjoint import loop_kinds
+from ._compiler import compiler_options
 from ._pool import run_pool
 from ._scene import Scene
 from ._simulate import _throw_if_failed, prepare, simulate
@@ -355,7 +356,7 @@ def _build_chunk(scene, in_axes_args, x0_batched, devices, options, direction, w
 
     if len(devices) == 1:
         device = devices[0]
-        compiled = jax.jit(run)
+        compiled = jax.jit(run, compiler_options=compiler_options(device.platform))
 
         def place(x, a, valid):
             return jax.device_put((x, a, valid), device)
@@ -363,19 +364,20 @@ def _build_chunk(scene, in_axes_args, x0_batched, devices, options, direction, w
         return lambda t0, t1, saveat: _Runner(compiled, place, (t0, t1, saveat))
 
     mesh = Mesh(np.array(devices), ("lanes",))
+    xla_options = compiler_options(devices[0].platform)
     lanes, replicated = PartitionSpec("lanes"), PartitionSpec()
     x_spec = lanes if x0_batched else replicated
     a_specs = jax.tree.map(lambda axis: replicated if axis is None else lanes, in_axes_args,
                            is_leaf=is_none)
     if width is None:
         # Plain vmap: XLA partitions the batch over the mesh.
-        compiled = jax.jit(run, out_shardings=NamedSharding(mesh, lanes))
+        compiled = jax.jit(run, out_shardings=NamedSharding(mesh, lanes), compiler_options=xla_options)
     else:
         # Each device runs its own pool on its share of the chunk.
         compiled = jax.jit(jax.shard_map(
             run, mesh=mesh, in_specs=(x_spec, a_specs, lanes, replicated, replicated, replicated),
             out_specs=lanes, check_vma=False,
-        ))
+        ), compiler_options=xla_options)
     x_sharding = NamedSharding(mesh, x_spec)
     a_sharding = jax.tree.map(lambda spec: NamedSharding(mesh, spec), a_specs)
     valid_sharding = NamedSharding(mesh, lanes)

@@ -144,7 +144,7 @@ def test_orbits_of_other_sizes_share_one_compiled_newton():
         orbit = find_periodic_orbit(EX1DOF, x_exact - np.array([0.02, 0.0]), 6.19,
                                     ex.ex1dof_args(mu), fix=1, start_at_impact=False, **TOL)
         assert OrbitStatus(int(orbit.status)) == OrbitStatus.SUCCESS, orbit.message
-        programs.append(_newton.jitted._cached._cache_size())
+        programs.append(_newton.single.jitted._cached._cache_size())
         newton_atols.append(orbit.settings.newton_atol)
     assert newton_atols[0] != newton_atols[1]
     assert programs[1] == programs[0]
