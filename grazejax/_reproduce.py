@@ -32,12 +32,12 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from . import examples, plot
+from ._compiler import compiler_options, single_run_jit
 from ._conditions import check_conditions
 from ._continuation import continue_orbit
 from ._linearize import (
@@ -111,7 +111,10 @@ def _compiled(scene_name: str, cfg: _Config, batch_args: bool):
         )
 
     in_axes = (0, 0 if batch_args else None, 0, 0, 0 if cfg.n_save else None)
-    return jax.jit(jax.vmap(one, in_axes=in_axes))
+    # Batches of 2-3 starts compile with the options for one trajectory (most of their
+    # time is the compile); the μ sweep with the batched ones (`_compiler`).
+    options = compiler_options(batched=cfg.lanes == 0)
+    return jax.jit(jax.vmap(one, in_axes=in_axes), compiler_options=options)
 
 
 def _pad(rows: list[np.ndarray], width: int, fill=np.nan, dtype=float) -> np.ndarray:
@@ -1570,7 +1573,7 @@ def _paper_derw_limit(scene, args, x_star, speed: float = 1e-7):
     return np.asarray(W), float(rate)
 
 
-@eqx.filter_jit  # one small program per scene instead of many eager dispatches
+@single_run_jit  # one small program per scene instead of many eager dispatches
 def _paper_derw_jit(scene, x_star, args, speed):
     surface = scene.surfaces[0]
     grad = jax.jacfwd(surface.phi, argnums=1)(0.0, x_star, args)
