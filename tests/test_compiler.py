@@ -170,3 +170,22 @@ def test_a_users_xla_flag_wins_for_single_runs(monkeypatch):
     monkeypatch.setattr(_compiler, "_known", lambda option, value: True)
     monkeypatch.setenv("XLA_FLAGS", "--xla_cpu_use_fusion_emitters=true")
     assert gj.compiler_options("cpu", batched=False) == {}
+
+
+@pytest.mark.parametrize("balance", ["refill", "none"])
+def test_sweep_compiles_with_the_batched_options(monkeypatch, balance):
+    from grazejax import _sweep
+
+    asked = []
+
+    def spy(platform=None, *, batched=True):
+        asked.append((platform, batched))
+        return {}
+
+    monkeypatch.setattr(_sweep, "compiler_options", spy)
+    monkeypatch.setattr(_sweep, "_CHUNK_CACHE", {})  # (a cached program would not ask)
+    x0s = jnp.stack([jnp.zeros(3), jnp.array([0.02, 0.03, 0.04])], axis=1)
+    sol = gj.sweep(ex.ex1dof(), x0s, 0.0, 5.0, ex.ex1dof_args(0.2), balance=balance,
+                   progress=False)
+    assert sol.x_final.shape == (3, 2)
+    assert asked == [(jax.devices()[0].platform, True)]
