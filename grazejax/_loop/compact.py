@@ -13,7 +13,7 @@ gathered (in lane order) into sub-batches of `compacted_width(batch)` lanes, the
 vmapped on each sub-batch in turn, and its results are scattered back; the other lanes get
 `nothing(operands)`. A lane's result is what `phase` computes for it alone: which other
 lanes need the phase changes only the cost. (Lanes in phase need it together; walking the
-queue in eighths then costs what one call over the batch costs: measured, the same to
+queue in sub-batches then costs what one call over the batch costs: measured, the same to
 within noise, while a second, whole-batch copy of the phase doubled the compile time.)
 
 Derivatives: JAX differentiates a custom batching rule by differentiating the rule, which
@@ -37,9 +37,13 @@ from jax.custom_batching import custom_vmap
 
 # The sub-batch is 1/SHARE of the batch, and at least MIN_WIDTH lanes: with random phases
 # a few percent of the lanes of an ex1dof sweep need a search on a given iteration (one or
-# two searches and one landing per impact, ~20 steps per impact), so one sub-batch of an
-# eighth almost always holds them all. (1/16 measured no better, within noise.)
-SHARE = 8
+# two searches and one landing per impact, ~30 steps per impact). An eighth was chosen
+# first (a sixteenth measured no better then); once the searches closed their brackets in
+# a few iterations and the kernels took 512-bit vectors, a sixteenth took 48-53 µs per
+# trajectory against 58-61 for an eighth (2048 random-phase lanes, Dopri8 2e-12, one core,
+# alternately; 1/32 and 1/64 ~52 µs), lanes in phase unchanged within noise (grazejax
+# issue 14).
+SHARE = 16
 MIN_WIDTH = 8
 
 
