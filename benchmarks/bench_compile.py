@@ -53,7 +53,7 @@ def _case(name: str) -> dict:
             "vmap": (jax.vmap(final), starts)}
     # The same programs compiled with the options for one trajectory (`gj.compiler_options`).
     one_run = " (one-run options)"
-    if name in runs or name.removesuffix(one_run) in runs:
+    if name.removesuffix(one_run) in runs:
         fn, inputs = runs[name.removesuffix(one_run)]
         options = gj.compiler_options(batched=False) if name.endswith(one_run) else {}
         # (jit keeps the compiled program: the 2nd call runs it)
