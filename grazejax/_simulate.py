@@ -271,7 +271,8 @@ _SEQUENTIAL_BUFFER_BYTES = 512
 
 
 def _staged_log_loop(cond, program: "Program", init):
-    """`while cond: step`, with the impact log written outside the loop that steps.
+    """`while cond: step`, in phases: the impact log written outside the loop that steps,
+    and the steps of a sliding policy only while something slides.
 
     The inner loop steps with a staging log of one landing's rows and stops when a lane has
     staged one; the outer loop moves those rows to the full log and resumes. At batch 1
@@ -283,20 +284,37 @@ def _staged_log_loop(cond, program: "Program", init):
     0.96-1.03× (XLA drops it either way). Not under `vmap`: every iteration there already
     touches large buffers, and the outer loop would stop whenever any lane impacts (a
     64-lane vmap took 1.26×). A small log (≤ 512 bytes) needs none of it.
+
+    With `ZenoStick`, the steps while no lane slides are `program.free_step` (no sliding
+    field, no search for the end of sliding: a run that never slides paid 1.25× for the
+    two per-step tests at batch 1, grazejax issue 14), and `program.step` runs from the
+    landing that starts sliding until no lane slides; under `vmap` too (the phase changes
+    only when a lane starts or ends sliding). Same values either way: `step`'s tests pick
+    exactly `free_step`'s computation while nothing slides.
     """
     rows = program.log_rows_per_landing
     log_bytes = max(
         math.prod(jnp.shape(b)) * jnp.result_type(b).itemsize for b in impact_log(init)
     )
-    if rows == 0 or log_bytes <= _SEQUENTIAL_BUFFER_BYTES or _under_vmap(init):
+    staging = rows > 0 and log_bytes > _SEQUENTIAL_BUFFER_BYTES and not _under_vmap(init)
+    phased = program.free_step is not program.step
+    if not staging and not phased:
         return lax.while_loop(cond, program.step, init)
 
+    def more(z):
+        return cond(z) & ~eqxi.unvmap_any(has_staged_rows(z)) if staging else cond(z)
+
     def steps_until_a_row(c):
-        staged, full_log = stage_log(c, rows)
-        staged = lax.while_loop(
-            lambda z: cond(z) & ~eqxi.unvmap_any(has_staged_rows(z)), program.step, staged
-        )
-        return flush_log(staged, full_log)
+        staged, full_log = stage_log(c, rows) if staging else (c, None)
+        if phased:
+            def slides(z):
+                return eqxi.unvmap_any(jnp.any(z.stick))
+
+            staged = lax.while_loop(lambda z: more(z) & ~slides(z), program.free_step, staged)
+            staged = lax.while_loop(lambda z: more(z) & slides(z), program.step, staged)
+        else:
+            staged = lax.while_loop(more, program.step, staged)
+        return flush_log(staged, full_log) if staging else staged
 
     return lax.while_loop(cond, steps_until_a_row, init)
 

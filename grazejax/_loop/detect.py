@@ -33,7 +33,8 @@ class Detection(NamedTuple):
     releasing: BoolScalar  # the event is the end of sliding
 
 
-def detect(ctx: LoopContext, c: LoopState, step: Step) -> Detection:
+def detect(ctx: LoopContext, c: LoopState, step: Step, slides: bool = True) -> Detection:
+    """The contacts (and, with `slides`, the end of sliding) inside an accepted step."""
     sa, sb, y1 = step.sa, step.sb, step.y1
     detecting = step.keep & ~c.landing & ~c.done
     ends = _step_ends(ctx, c, step)
@@ -63,7 +64,7 @@ def detect(ctx: LoopContext, c: LoopState, step: Step) -> Detection:
     # (A scene without surfaces is a plain ODE solve: no contact, ever.)
     first = jax.lax.stop_gradient(jnp.min(times)) if ctx.m > 0 else jnp.array(jnp.inf, ctx.dtype)
     releasing = jnp.array(False)
-    if ctx.sticky:
+    if ctx.sticky and slides:
         # Φ̈ of the slid-on surface at both ends, only while some lane slides (every step
         # paid for it in runs that never slide: grazejax issue 14).
         def release_test():

@@ -22,7 +22,7 @@ from .state import (
     with_buffers,
     with_impact_log,
     without_buffers,
-    write_log,
+    write_log_rows,
 )
 from .step import Step
 
@@ -57,11 +57,7 @@ def land_if_due(ctx: LoopContext, c: LoopState, step: Step):
         )
     log = impact_log(c)
     row = c.num_impacts + log_row_offset(c)
-    count = jnp.array(0)
-    for slot in range(rows[0].shape[0]):
-        apply, pre, post, surface, kind = (r[slot] for r in rows)
-        log = write_log(log, row + count, apply, t_event, pre, post, surface, kind)
-        count = count + apply
+    log = write_log_rows(log, row, t_event, rows)
     landed = with_impact_log(with_buffers(landed_small, c), log)
     return landed, t_event, s_save
 

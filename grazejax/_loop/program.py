@@ -35,6 +35,9 @@ class Program(eqx.Module):
 
     init: Callable = eqx.field(static=True)  # (x0, args) -> state
     step: Callable = eqx.field(static=True)  # state -> state: one solver step (frozen when done)
+    # `step` for a state where no lane slides: no sliding field, no search for the end of
+    # sliding (`step` itself without `ZenoStick`). A landing may still start sliding.
+    free_step: Callable = eqx.field(static=True)
     running: Callable = eqx.field(static=True)  # state -> bool: not finished, not out of steps
     finish: Callable = eqx.field(static=True)  # state -> Solution
     log_rows_per_landing: int = eqx.field(static=True)  # impact-log rows one landing writes
@@ -56,8 +59,10 @@ def build_program(
         check_field_jumps=check_field_jumps,
     )
     # (functools.partial, not bound methods: `Program`'s static fields hash by identity.)
+    step_ = functools.partial(step, ctx)
     return Program(
-        init=functools.partial(init, ctx), step=functools.partial(step, ctx),
+        init=functools.partial(init, ctx), step=step_,
+        free_step=functools.partial(step, ctx, slides=False) if ctx.sticky else step_,
         running=functools.partial(running, ctx), finish=functools.partial(finish, ctx),
         log_rows_per_landing=ctx.log_rows_per_landing,
     )
@@ -210,13 +215,13 @@ def init(ctx: LoopContext, x0, args) -> LoopState:
 # --------------------------------------------------------------------------------------
 
 
-def step(ctx: LoopContext, c_in: LoopState) -> LoopState:
+def step(ctx: LoopContext, c_in: LoopState, slides: bool = True) -> LoopState:
     # A lane out of steps is frozen like a finished one (see `simulate`'s `cond`), but
     # keeps done = False so that it reports MAX_STEPS.
     out_of_steps = ~c_in.done & (c_in.num_steps >= ctx.max_steps)
     c = eqx.tree_at(lambda z: z.done, c_in, c_in.done | out_of_steps)
-    taken = take_step(ctx, c)
-    found = detect(ctx, c, taken)
+    taken = take_step(ctx, c, slides)
+    found = detect(ctx, c, taken, slides)
     landed, _, s_save = land_if_due(ctx, c, taken)
     new = _next_state(ctx, c, taken, found, landed, s_save)
     return eqx.tree_at(lambda z: z.done, new, new.done & ~out_of_steps)

@@ -31,9 +31,9 @@ class Step(NamedTuple):
     controller_state: PyTree[Any]
 
 
-def take_step(ctx: LoopContext, c: LoopState) -> Step:
+def take_step(ctx: LoopContext, c: LoopState, slides: bool = True) -> Step:
     """One solver step from c.s: to the located contact on a landing, else by c.h (never
-    past t1)."""
+    past t1). `slides=False`: no lane slides (the free field, no per-step test)."""
     solver, controller = ctx.solver, ctx.controller
     targs = (c.args, c.t_hi, c.t_lo, c.stick)
     s_end = ctx.s_end_of(c.t_hi, c.t_lo)
@@ -43,7 +43,7 @@ def take_step(ctx: LoopContext, c: LoopState) -> Step:
     def step_with(term):
         return solver.step(term, sa, sb, c.y, targs, c.solver_state, c.made_jump)
 
-    if ctx.sticky:
+    if ctx.sticky and slides:
         # The sliding field only while some lane slides: decided once per step, not per
         # stage (the field's own `cond`, evaluated in each of the 6–13 stages, made
         # zeno="stick" cost 1.52× in runs that never slide: grazejax issue 14). The free
@@ -53,7 +53,7 @@ def take_step(ctx: LoopContext, c: LoopState) -> Step:
             lambda: step_with(ctx.term), lambda: step_with(ctx.free_term),
         )
     else:
-        y1, y_error, dense_info, solver_state1, _ = step_with(ctx.term)
+        y1, y_error, dense_info, solver_state1, _ = step_with(ctx.free_term)
     # A NaN error estimate must reject the step, not poison the controller (diffrax #143).
     y_error = error_or_zero(y_error, y1)
     y_error = jnp.where(jnp.isnan(y_error), jnp.inf, y_error)
