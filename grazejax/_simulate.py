@@ -211,13 +211,21 @@ def run_loop(cond, program: "Program", init, adjoint, max_steps: int):
         return _mark_forward_only(final)
     if kinds.outer == "checkpointed":
         pack, unpack = packing(init)
-        final = eqxi.while_loop(
-            lambda packed: cond(unpack(packed)),
-            lambda packed: pack(program.step(unpack(packed))),
-            pack(init), max_steps=max_steps + 1, kind=kinds.outer,
-            checkpoints=_checkpoint_count(kinds.checkpoints, max_steps),
-            buffers=lambda packed: packed[1],
-        )
+
+        def packed_cond(packed):
+            return cond(unpack(packed))
+
+        def packed_step(packed):
+            return pack(program.step(unpack(packed)))
+
+        checkpoints = _checkpoint_count(kinds.checkpoints, max_steps)
+        if checkpoints is None:
+            final = _two_level_checkpointed(packed_cond, packed_step, pack(init), max_steps + 1)
+        else:
+            final = eqxi.while_loop(
+                packed_cond, packed_step, pack(init), max_steps=max_steps + 1,
+                kind=kinds.outer, checkpoints=checkpoints, buffers=lambda packed: packed[1],
+            )
         return unpack(final)
     # DirectAdjoint's bounded loop keeps the log in its carry: with the log as buffers it
     # took 8–10× the primal at 10 impacts against 4.6× before (separate runs on a loaded
@@ -225,6 +233,36 @@ def run_loop(cond, program: "Program", init, adjoint, max_steps: int):
     return eqxi.while_loop(
         cond, program.step, init, max_steps=max_steps + 1, kind=kinds.outer,
         checkpoints=kinds.checkpoints,
+    )
+
+
+def _two_level_checkpointed(cond, body, init, bound: int):
+    """`while cond: body` for at most `bound` iterations, reverse-differentiable with
+    two levels of checkpoints: the state every `chunk ≈ √bound` iterations, and, while
+    the backward pass goes through a chunk, every iteration of that chunk.
+
+    Both levels are Equinox checkpointed loops with as many checkpoints as iterations, the
+    case in which Equinox stores every iteration and recomputes nothing in its backward
+    loop; the price is one more forward pass over each chunk. Memory: ~2√bound carries
+    (~160 KiB for the default `max_steps` and a 2-dimensional state), whatever the run's
+    length. Against Equinox's own schedule with its default checkpoints (√(2·bound) ≈ 447,
+    recursive recomputation), forced impact oscillator, one core, min of 7, same process:
+    gradient 10.2× → 8.0× the primal at 100 impacts, 11.0× → 8.3× at 1000, 6.7× → 7.0× at
+    10 (where those 447 checkpoints already hold nearly every step); gradients equal to
+    2e-14. The chunk length does not matter (64 or 2048 steps: the same within 1%).
+    """
+    chunk = math.isqrt(bound - 1) + 1
+    chunks = -(-bound // chunk)
+
+    def run_chunk(state):
+        return eqxi.while_loop(
+            cond, body, state, max_steps=chunk, kind="checkpointed", checkpoints=chunk,
+            buffers=lambda packed: packed[1],
+        )
+
+    return eqxi.while_loop(
+        cond, run_chunk, init, max_steps=chunks, kind="checkpointed", checkpoints=chunks,
+        buffers=lambda packed: packed[1],
     )
 
 
