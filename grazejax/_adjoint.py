@@ -6,11 +6,12 @@ needs Equinox's checkpointed loop (a `custom_vjp`, which forward mode cannot ent
 Equinox's bounded loop (nested scans) supports both at the price of storing every step.
 So the choice is the user's, in Diffrax's words:
 
-| `adjoint=`                                   | jax.jacfwd | jax.grad | cost                      |
-|----------------------------------------------|------------|----------|---------------------------|
-| `None`, `diffrax.ForwardMode()`              | yes        | no       | the primal's              |
-| `diffrax.RecursiveCheckpointAdjoint(n)`      | no         | yes      | recomputation, n carries  |
-| `diffrax.DirectAdjoint()`                    | yes        | yes      | memory for every step     |
+| `adjoint=`                                | jax.jacfwd | jax.grad | cost                                |
+|-------------------------------------------|------------|----------|-------------------------------------|
+| `None`, `diffrax.ForwardMode()`           | yes        | no       | the primal's                        |
+| `diffrax.RecursiveCheckpointAdjoint()`    | no         | yes      | a 2nd forward pass, 2√max_steps carries |
+| `diffrax.RecursiveCheckpointAdjoint(n)`   | no         | yes      | recomputation, n carries            |
+| `diffrax.DirectAdjoint()`                 | yes        | yes      | memory for every step               |
 
 Event times never need a loop's derivative: the root searches locate them without
 tangents, and one Newton step outside the searches carries the implicit-function-theorem

@@ -121,8 +121,11 @@ def simulate(
     - `adjoint`: how the loop is differentiated, as a Diffrax adjoint.
       `None`/`diffrax.ForwardMode()` (default): `jax.jvp`/`jax.jacfwd`;
       `diffrax.RecursiveCheckpointAdjoint(checkpoints=...)`: `jax.grad`/`jax.vjp`
-      (recomputes steps between checkpoints; `checkpoints >= max_steps` stores every step,
-      the fastest reverse pass when `max_steps` bounds the run closely);
+      (`checkpoints=None`, the default: the state every ~√max_steps steps, and every
+      step of one such chunk at a time in the backward pass, ~2√max_steps carries in
+      all; an integer c: Equinox's recursive schedule with c checkpoints;
+      `checkpoints >= max_steps` stores every step, the fastest reverse pass when
+      `max_steps` bounds the run closely);
       `diffrax.DirectAdjoint()`: both modes, at the
       memory cost of every step. Event-time tangents are the same in every mode (the
       implicit function theorem at the landing step).
