@@ -223,6 +223,8 @@ def run_loop(cond, program: "Program", init, adjoint, max_steps: int):
 
         checkpoints = _checkpoint_count(kinds.checkpoints, max_steps)
         if checkpoints is None:
+            if _stages_log(program, init):
+                return _two_level_staged(cond, program, init, max_steps + 1)
             final = _two_level_checkpointed(packed_cond, packed_step, pack(init), max_steps + 1)
         else:
             final = eqxi.while_loop(
@@ -267,6 +269,53 @@ def _two_level_checkpointed(cond, body, init, bound: int):
         cond, run_chunk, init, max_steps=chunks, kind="checkpointed", checkpoints=chunks,
         buffers=lambda packed: packed[1],
     )
+
+
+def _two_level_staged(cond, program: "Program", init, bound: int):
+    """`_two_level_checkpointed` with the impact log staged (`_staged_log_loop`): an outer
+    iteration ends at a chunk's end or at a landing that wrote rows, which it moves to the
+    full log (the outer loop's write-once buffers). The inner loop then carries one
+    landing's rows instead of the whole log as buffers, so its forward passes run on
+    XLA's sequential executor as the primal does."""
+    rows = program.log_rows_per_landing
+    chunk = math.isqrt(bound - 1) + 1
+    max_impacts = impact_log(init)[0].shape[0]
+    # An outer iteration runs a whole chunk, or stops at a landing with rows (at most one
+    # per row of the log, and the one that fills it ends the run), or at the end.
+    outer_bound = -(-bound // chunk) + max_impacts + 2
+    pack, unpack = packing(init)
+    spack, sunpack = packing(stage_log(init, rows)[0])
+
+    def inner_cond(packed):
+        z = sunpack(packed)
+        return cond(z) & ~eqxi.unvmap_any(has_staged_rows(z))
+
+    def inner_step(packed):
+        return spack(program.step(sunpack(packed)))
+
+    def outer_step(packed):
+        staged, full_log = stage_log(unpack(packed), rows)
+        staged = eqxi.while_loop(
+            inner_cond, inner_step, spack(staged), max_steps=chunk, kind="checkpointed",
+            checkpoints=chunk,
+        )
+        return pack(flush_log(sunpack(staged), full_log))
+
+    final = eqxi.while_loop(
+        lambda packed: cond(unpack(packed)), outer_step, pack(init), max_steps=outer_bound,
+        kind="checkpointed", checkpoints=outer_bound, buffers=lambda packed: packed[1],
+    )
+    return unpack(final)
+
+
+def _stages_log(program: "Program", init) -> bool:
+    """Whether a single run's loop writes its impact log outside the loop that steps (see
+    `_staged_log_loop`)."""
+    rows = program.log_rows_per_landing
+    log_bytes = max(
+        math.prod(jnp.shape(b)) * jnp.result_type(b).itemsize for b in impact_log(init)
+    )
+    return rows > 0 and log_bytes > _SEQUENTIAL_BUFFER_BYTES and not _under_vmap(init)
 
 
 def _checkpoint_count(checkpoints: int | None, max_steps: int) -> int | None:
@@ -334,10 +383,7 @@ def _staged_log_loop(cond, program: "Program", init):
     exactly `free_step`'s computation while nothing slides.
     """
     rows = program.log_rows_per_landing
-    log_bytes = max(
-        math.prod(jnp.shape(b)) * jnp.result_type(b).itemsize for b in impact_log(init)
-    )
-    staging = rows > 0 and log_bytes > _SEQUENTIAL_BUFFER_BYTES and not _under_vmap(init)
+    staging = _stages_log(program, init)
     phased = program.free_step is not program.step
     if not staging and not phased:
         return lax.while_loop(cond, program.step, init)

@@ -473,3 +473,39 @@ def test_checkpoints_at_max_steps_mean_every_step():
     for checkpoints in (6, 100):
         adjoint = diffrax.RecursiveCheckpointAdjoint(checkpoints=checkpoints)
         assert_close(jax.grad(lambda q, a=adjoint: state_sum(q, a)[0])(p), forward, MODES)
+
+
+def test_default_checkpoints_two_levels(monkeypatch):
+    """`RecursiveCheckpointAdjoint()` runs two levels of every-step checkpointed loops,
+    chunks of ~√max_steps steps (`_two_level_checkpointed`; with a log over 512 bytes the
+    staged variant, `_two_level_staged`, whose outer iterations also end at each landing
+    with rows). Small `max_steps` so that chunks end inside flights: gradients equal
+    jacfwd's, also for runs that end at MAX_STEPS and at MAX_IMPACTS."""
+    import grazejax._simulate as simulate_module
+
+    taken = []
+    original = simulate_module._two_level_staged
+    monkeypatch.setattr(
+        simulate_module, "_two_level_staged", lambda *a: taken.append(1) or original(*a)
+    )
+
+    def loss(q, adjoint, max_steps, impacts):
+        sol = gj.simulate(BALL, q[:2], 0.0, BALL_T, {"g": q[2], "e": q[3]}, adjoint=adjoint,
+                          max_steps=max_steps, max_impacts=impacts, throw=False, **TIGHT)
+        return sol.x_final[0] + sol.x_final[1] / 2 + jnp.nansum(sol.impact_times), sol.status
+
+    p = jnp.asarray(BALL_P)
+    cases = [  # (max_steps, max_impacts, status, staged): the run takes 10 steps
+        (12, 100, gj.Status.SUCCESS, True),  # chunks of 4 steps; a 1600-byte log
+        (6, 100, gj.Status.MAX_STEPS, True),
+        (12, 8, gj.Status.SUCCESS, False),  # a 128-byte log: one level of loops
+        (12, 2, gj.Status.MAX_IMPACTS, False),
+    ]
+    for max_steps, impacts, status, staged in cases:
+        taken.clear()
+        assert gj.Status(int(loss(p, None, max_steps, impacts)[1])) == status
+        bound = dict(max_steps=max_steps, impacts=impacts)
+        forward = jax.jacfwd(lambda q, b=bound: loss(q, None, **b)[0])(p)
+        reverse = jax.grad(lambda q, b=bound: loss(q, RCA, **b)[0])(p)
+        assert_close(reverse, forward, MODES)
+        assert bool(taken) == staged
