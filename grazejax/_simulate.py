@@ -121,9 +121,9 @@ def simulate(
     - `adjoint`: how the loop is differentiated, as a Diffrax adjoint.
       `None`/`diffrax.ForwardMode()` (default): `jax.jvp`/`jax.jacfwd`;
       `diffrax.RecursiveCheckpointAdjoint(checkpoints=...)`: `jax.grad`/`jax.vjp`
-      (`checkpoints=None`, the default: the state every ~√max_steps steps, and every
-      step of one such chunk at a time in the backward pass, ~2√max_steps carries in
-      all; an integer c: Equinox's recursive schedule with c checkpoints;
+      (`checkpoints=None`, the default: the state every ~√max_steps steps and at each
+      impact, and every step of one such chunk at a time in the backward pass,
+      ~2√max_steps + max_impacts carries in all; an integer c: Equinox's recursive schedule with c checkpoints;
       `checkpoints >= max_steps` stores every step, the fastest reverse pass when
       `max_steps` bounds the run closely);
       `diffrax.DirectAdjoint()`: both modes, at the
@@ -254,7 +254,9 @@ def _two_level_checkpointed(cond, body, init, bound: int):
     recursive recomputation), forced impact oscillator, one core, min of 7, same process:
     gradient 10.2× → 8.0× the primal at 100 impacts, 11.0× → 8.3× at 1000, 6.7× → 7.0× at
     10 (where those 447 checkpoints already hold nearly every step); gradients equal to
-    2e-14. The chunk length does not matter (64 or 2048 steps: the same within 1%).
+    2e-14. The chunk length does not matter (64 or 2048 steps: the same within 1%). With
+    the log staged (`_two_level_staged`, that run's 1000-row log): 5.9/6.7/6.8× at
+    10/100/1000 impacts.
     """
     chunk = math.isqrt(bound - 1) + 1
     chunks = -(-bound // chunk)
