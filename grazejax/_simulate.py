@@ -123,9 +123,9 @@ def simulate(
       `diffrax.RecursiveCheckpointAdjoint(checkpoints=...)`: `jax.grad`/`jax.vjp`
       (`checkpoints=None`, the default: the state every ~√max_steps steps and at each
       impact, and every step of one such chunk at a time in the backward pass,
-      ~2√max_steps + max_impacts carries in all; an integer c: Equinox's recursive schedule with c checkpoints;
-      `checkpoints >= max_steps` stores every step, the fastest reverse pass when
-      `max_steps` bounds the run closely);
+      ~2√max_steps + max_impacts carries in all; an integer c: Equinox's recursive
+      schedule with c checkpoints; `checkpoints >= max_steps` stores every step, the
+      fastest reverse pass when `max_steps` bounds the run closely);
       `diffrax.DirectAdjoint()`: both modes, at the
       memory cost of every step. Event-time tangents are the same in every mode (the
       implicit function theorem at the landing step).

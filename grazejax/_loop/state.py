@@ -224,8 +224,9 @@ def write_log_rows(log, row, t, rows):
     single run ~5% (grazejax issue 14).
     """
     apply, pre, post, surface, kind = rows
-    if not isinstance(log[0], jax.Array):
-        # The write-once buffers of a checkpointed loop: row by row (see `write_log`).
+    if apply.shape[0] == 1 or not isinstance(log[0], jax.Array):
+        # One slot: the single write. The write-once buffers of a checkpointed loop: row by
+        # row (see `write_log`).
         at = jnp.array(0)
         for slot in range(apply.shape[0]):
             log = write_log(log, row + at, apply[slot], t, pre[slot], post[slot],
