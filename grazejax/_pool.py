@@ -25,6 +25,7 @@ import jax
 import jax.lax as lax
 import jax.numpy as jnp
 
+from ._loop.policies import sliding_phases
 from ._solution import Solution
 
 # Refill once at least `width // REFILL` slots have finished (or none is running): a refill
@@ -178,12 +179,5 @@ def _in_phases(cond, body, free_body, program, state, *, carry_of):
     lanes, one core). `carry_of(state)` is the pool's carry."""
     if program.free_step is program.step:
         return lax.while_loop(cond, body, state)
-
-    def slides(s):
-        return jnp.any(carry_of(s).stick)
-
-    def phases(s):
-        s = lax.while_loop(lambda z: cond(z) & ~slides(z), free_body, s)
-        return lax.while_loop(lambda z: cond(z) & slides(z), body, s)
-
+    phases = sliding_phases(cond, body, free_body, lambda s: jnp.any(carry_of(s).stick))
     return lax.while_loop(cond, phases, state)

@@ -39,7 +39,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._adjoint import REVERSE_HINT, loop_kinds
-from ._loop.policies import AbstractZenoPolicy
+from ._loop.policies import AbstractZenoPolicy, sliding_phases
 from ._loop.program import Program, build_program
 from ._loop.state import flush_log, has_staged_rows, impact_log, packing, stage_log
 from ._scene import Scene
@@ -213,24 +213,16 @@ def run_loop(cond, program: "Program", init, adjoint, max_steps: int):
         # Name the fix if someone asks for reverse mode (the bare error names lax.while_loop).
         return _mark_forward_only(final)
     if kinds.outer == "checkpointed":
-        pack, unpack = packing(init)
-
-        def packed_cond(packed):
-            return cond(unpack(packed))
-
-        def packed_step(packed):
-            return pack(program.step(unpack(packed)))
-
         checkpoints = _checkpoint_count(kinds.checkpoints, max_steps)
         if checkpoints is None:
-            if _stages_log(program, init):
-                return _two_level_staged(cond, program, init, max_steps + 1)
-            final = _two_level_checkpointed(packed_cond, packed_step, pack(init), max_steps + 1)
-        else:
-            final = eqxi.while_loop(
-                packed_cond, packed_step, pack(init), max_steps=max_steps + 1,
-                kind=kinds.outer, checkpoints=checkpoints, buffers=lambda packed: packed[1],
-            )
+            return _two_level_checkpointed(cond, program, init, max_steps + 1)
+        pack, unpack = packing(init)
+        final = eqxi.while_loop(
+            lambda packed: cond(unpack(packed)),
+            lambda packed: pack(program.step(unpack(packed))),
+            pack(init), max_steps=max_steps + 1, kind=kinds.outer,
+            checkpoints=checkpoints, buffers=lambda packed: packed[1],
+        )
         return unpack(final)
     # DirectAdjoint's bounded loop keeps the log in its carry: with the log as buffers it
     # took 8–10× the primal at 10 impacts against 4.6× before (separate runs on a loaded
@@ -241,10 +233,10 @@ def run_loop(cond, program: "Program", init, adjoint, max_steps: int):
     )
 
 
-def _two_level_checkpointed(cond, body, init, bound: int):
-    """`while cond: body` for at most `bound` iterations, reverse-differentiable with
-    two levels of checkpoints: the state every `chunk ≈ √bound` iterations, and, while
-    the backward pass goes through a chunk, every iteration of that chunk.
+def _two_level_checkpointed(cond, program: "Program", init, bound: int):
+    """`while cond: step` for at most `bound` iterations, reverse-differentiable with
+    two levels of checkpoints: the state every `chunk ≈ √bound` steps, and, while the
+    backward pass goes through a chunk, every step of that chunk.
 
     Both levels are Equinox checkpointed loops with as many checkpoints as iterations, the
     case in which Equinox stores every iteration and recomputes nothing in its backward
@@ -254,54 +246,44 @@ def _two_level_checkpointed(cond, body, init, bound: int):
     recursive recomputation), forced impact oscillator, one core, min of 7, same process:
     gradient 10.2× → 8.0× the primal at 100 impacts, 11.0× → 8.3× at 1000, 6.7× → 7.0× at
     10 (where those 447 checkpoints already hold nearly every step); gradients equal to
-    2e-14. The chunk length does not matter (64 or 2048 steps: the same within 1%). With
-    the log staged (`_two_level_staged`, that run's 1000-row log): 5.9/6.7/6.8× at
-    10/100/1000 impacts.
+    2e-14. The chunk length does not matter (64 or 2048 steps: the same within 1%).
+
+    Where a single run stages its log (`_stages_log`), an outer iteration also ends at a
+    landing that wrote rows, and moves them to the full log (the outer loop's write-once
+    buffers; ~one more carry per log row). The inner loop then carries one landing's rows
+    instead of the whole log as buffers, so its forward passes run on XLA's sequential
+    executor as the primal does: 5.9/6.7/6.8× at 10/100/1000 impacts (that run's 1000-row
+    log).
     """
     chunk = math.isqrt(bound - 1) + 1
-    chunks = -(-bound // chunk)
-
-    def run_chunk(state):
-        return eqxi.while_loop(
-            cond, body, state, max_steps=chunk, kind="checkpointed", checkpoints=chunk,
-            buffers=lambda packed: packed[1],
-        )
-
-    return eqxi.while_loop(
-        cond, run_chunk, init, max_steps=chunks, kind="checkpointed", checkpoints=chunks,
-        buffers=lambda packed: packed[1],
-    )
-
-
-def _two_level_staged(cond, program: "Program", init, bound: int):
-    """`_two_level_checkpointed` with the impact log staged (`_staged_log_loop`): an outer
-    iteration ends at a chunk's end or at a landing that wrote rows, which it moves to the
-    full log (the outer loop's write-once buffers). The inner loop then carries one
-    landing's rows instead of the whole log as buffers, so its forward passes run on
-    XLA's sequential executor as the primal does."""
-    rows = program.log_rows_per_landing
-    chunk = math.isqrt(bound - 1) + 1
-    max_impacts = impact_log(init)[0].shape[0]
-    # An outer iteration runs a whole chunk, or stops at a landing with rows (at most one
-    # per row of the log, and the one that fills it ends the run), or at the end.
-    outer_bound = -(-bound // chunk) + max_impacts + 2
+    outer_bound = -(-bound // chunk)
     pack, unpack = packing(init)
-    spack, sunpack = packing(stage_log(init, rows)[0])
+    staging = _stages_log(program, init)
+    if staging:
+        rows = program.log_rows_per_landing
+        # An outer iteration runs a whole chunk, or stops at a landing with rows (at most
+        # one per row of the log, and the one that fills it ends the run), or at the end.
+        outer_bound += impact_log(init)[0].shape[0] + 2
+        inner_pack, inner_unpack = packing(stage_log(init, rows)[0])
+        inner_buffers = None  # (the staging rows are carried)
+    else:
+        inner_pack, inner_unpack = pack, unpack
+        inner_buffers = lambda packed: packed[1]  # noqa: E731
 
     def inner_cond(packed):
-        z = sunpack(packed)
-        return cond(z) & ~eqxi.unvmap_any(has_staged_rows(z))
-
-    def inner_step(packed):
-        return spack(program.step(sunpack(packed)))
+        z = inner_unpack(packed)
+        return cond(z) & ~eqxi.unvmap_any(has_staged_rows(z)) if staging else cond(z)
 
     def outer_step(packed):
-        staged, full_log = stage_log(unpack(packed), rows)
+        c = unpack(packed)
+        staged, full_log = stage_log(c, rows) if staging else (c, None)
         staged = eqxi.while_loop(
-            inner_cond, inner_step, spack(staged), max_steps=chunk, kind="checkpointed",
-            checkpoints=chunk,
+            inner_cond, lambda p: inner_pack(program.step(inner_unpack(p))),
+            inner_pack(staged), max_steps=chunk, kind="checkpointed", checkpoints=chunk,
+            buffers=inner_buffers,
         )
-        return pack(flush_log(sunpack(staged), full_log))
+        staged = inner_unpack(staged)
+        return pack(flush_log(staged, full_log) if staging else staged)
 
     final = eqxi.while_loop(
         lambda packed: cond(unpack(packed)), outer_step, pack(init), max_steps=outer_bound,
@@ -396,11 +378,10 @@ def _staged_log_loop(cond, program: "Program", init):
     def steps_until_a_row(c):
         staged, full_log = stage_log(c, rows) if staging else (c, None)
         if phased:
-            def slides(z):
-                return eqxi.unvmap_any(jnp.any(z.stick))
-
-            staged = lax.while_loop(lambda z: more(z) & ~slides(z), program.free_step, staged)
-            staged = lax.while_loop(lambda z: more(z) & slides(z), program.step, staged)
+            staged = sliding_phases(
+                more, program.step, program.free_step,
+                lambda z: eqxi.unvmap_any(jnp.any(z.stick)),
+            )(staged)
         else:
             staged = lax.while_loop(more, program.step, staged)
         return flush_log(staged, full_log) if staging else staged

@@ -477,16 +477,15 @@ def test_checkpoints_at_max_steps_mean_every_step():
 
 def test_default_checkpoints_two_levels(monkeypatch):
     """`RecursiveCheckpointAdjoint()` runs two levels of every-step checkpointed loops,
-    chunks of ~√max_steps steps (`_two_level_checkpointed`; with a log over 512 bytes the
-    staged variant, `_two_level_staged`, whose outer iterations also end at each landing
-    with rows). Small `max_steps` so that chunks end inside flights: gradients equal
+    chunks of ~√max_steps steps (`_two_level_checkpointed`; with a log over 512 bytes its
+    outer iterations also end at each landing with rows, the log staged). Small `max_steps` so that chunks end inside flights: gradients equal
     jacfwd's, also for runs that end at MAX_STEPS and at MAX_IMPACTS."""
     import grazejax._simulate as simulate_module
 
-    taken = []
-    original = simulate_module._two_level_staged
+    taken = []  # the staging log's rows, each time the loop stages the log
+    original = simulate_module.stage_log
     monkeypatch.setattr(
-        simulate_module, "_two_level_staged", lambda *a: taken.append(1) or original(*a)
+        simulate_module, "stage_log", lambda c, rows: taken.append(rows) or original(c, rows)
     )
 
     def loss(q, adjoint, max_steps, impacts):
@@ -502,10 +501,10 @@ def test_default_checkpoints_two_levels(monkeypatch):
         (12, 2, gj.Status.MAX_IMPACTS, False),
     ]
     for max_steps, impacts, status, staged in cases:
-        taken.clear()
         assert gj.Status(int(loss(p, None, max_steps, impacts)[1])) == status
         bound = dict(max_steps=max_steps, impacts=impacts)
         forward = jax.jacfwd(lambda q, b=bound: loss(q, None, **b)[0])(p)
+        taken.clear()  # (the forward-mode runs above stage their logs too)
         reverse = jax.grad(lambda q, b=bound: loss(q, RCA, **b)[0])(p)
         assert_close(reverse, forward, MODES)
         assert bool(taken) == staged

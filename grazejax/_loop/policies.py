@@ -79,6 +79,18 @@ def as_zeno_policy(zeno) -> AbstractZenoPolicy:
 # --------------------------------------------------------------------------------------
 
 
+def sliding_phases(cond, step, free_step, slides):
+    """A loop body that runs `free_step` while `cond` holds and nothing `slides`, then
+    `step` while `cond` holds and something does: a `ZenoStick` loop pays for the sliding
+    tests only while a lane slides (`simulate`'s and `sweep`'s loops, grazejax issue 14)."""
+
+    def phases(state):
+        state = lax.while_loop(lambda z: cond(z) & ~slides(z), free_step, state)
+        return lax.while_loop(lambda z: cond(z) & slides(z), step, state)
+
+    return phases
+
+
 def sliding_field(vector_field, pieces, t, y, args_, stick, free):
     """f + λd on the surfaces slid on (see *Sticking* in `simulate`); the constrained field
     is evaluated only while some lane slides."""
