@@ -9,7 +9,9 @@ alone); their difference is the compile time. The min over `--repeats` processes
 reported (the machine is shared; compile times move by ~20% between runs).
 
 Cases (ex1dof at μ = 0.2 from (0.5, 1.2), default solver and tolerances, t1 = 20, 20-row log):
-`simulate`, `jax.jacfwd` of its final state (each also compiled with
+`simulate` called directly (outside `jit`: grazejax's own cached program; its second call
+has a new start and a new μ), `simulate` and `jax.jacfwd` of its final state in a user's
+`jax.jit` (each also compiled with
 `gj.compiler_options(batched=False)`, XLA:CPU's quicker emitters for one trajectory, which
 grazejax's own orbit and Jacobian programs use), `jax.vmap` over 64 starts, and the README's
 periodic-orbit example: `find_periodic_orbit` (impacting cycle from its impact) and then
@@ -29,7 +31,8 @@ import sys
 import time
 from pathlib import Path
 
-TARGETS_S = {"simulate": 1.5, "simulate (one-run options)": 1.5, "jacfwd": 4.0,
+TARGETS_S = {"simulate": 1.5, "simulate (one-run options)": 1.5,
+             "simulate (outside jit)": 1.5, "jacfwd": 4.0,
              "jacfwd (one-run options)": 4.0, "vmap": None, "find_periodic_orbit": 8.0,
              "continue_orbit": 10.0}
 
@@ -53,7 +56,15 @@ def _case(name: str) -> dict:
             "vmap": (jax.vmap(final), starts)}
     # The same programs compiled with the options for one trajectory (`gj.compiler_options`).
     one_run = " (one-run options)"
-    if name.removesuffix(one_run) in runs:
+    if name == "simulate (outside jit)":
+        # `gj.simulate` called directly: its own cached program. The second call has a new
+        # start and a new μ (a Python float in args): inputs, not a new program.
+        calls = iter([(x0, args), (x0 + 0.01, ex.ex1dof_args(0.21))])
+
+        def call():
+            x, a = next(calls)
+            return gj.simulate(scene, x, 0.0, 20.0, a, max_impacts=20)
+    elif name.removesuffix(one_run) in runs:
         fn, inputs = runs[name.removesuffix(one_run)]
         options = gj.compiler_options(batched=False) if name.endswith(one_run) else {}
         # (jit keeps the compiled program: the 2nd call runs it)

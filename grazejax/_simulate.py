@@ -39,13 +39,14 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._adjoint import REVERSE_HINT, loop_kinds
+from ._compiler import single_run_jit
 from ._loop.policies import AbstractZenoPolicy, sliding_phases
 from ._loop.program import Program, build_program
 from ._loop.state import flush_log, has_staged_rows, impact_log, packing, stage_log
 from ._scene import Scene
 from ._solution import ACCEPTED, FIELD_FIX, SimulationError, Solution, failure_message
 from ._status import Status
-from ._validate import validate_inputs
+from ._validate import is_concrete, validate_inputs
 
 # --------------------------------------------------------------------------------------
 # simulate
@@ -78,7 +79,10 @@ def simulate(
     r"""Simulate x' = f(t, x) with jumps x → J_i(x) on the surface pieces Γ_i, from t0 to t1.
 
     One call is one XLA program: it works under `jax.jit`, `jax.vmap` (batched `x0` and
-    `args` leaves) and `jax.jacfwd` (with respect to `x0` and `args`).
+    `args` leaves) and `jax.jacfwd` (with respect to `x0` and `args`). Called outside any
+    transformation, it checks its inputs and runs a program compiled once per scene object
+    and options (with `grazejax.compiler_options(batched=False)`) and kept: new `x0`, `t0`,
+    `t1` and numbers in `args` (arrays, Python floats) do not compile it again.
 
     **Arguments:**
 
@@ -182,12 +186,33 @@ def simulate(
     print(sol.summary())
     ```
     """
+    options = dict(
+        solver=solver, rtol=rtol, atol=atol, stepsize_controller=stepsize_controller,
+        dt0=dt0, max_impacts=max_impacts, max_steps=max_steps, zeno_rtol=zeno_rtol,
+        zeno=zeno, adjoint=adjoint, check_field_jumps=check_field_jumps,
+        allow_float32=allow_float32,
+    )
+    if is_concrete(scene, x0, t0, t1, args, saveat, options):
+        # Outside any transformation: check the inputs here, where their values are known,
+        # then run one cached XLA program, compiled once per scene and options.
+        checked = validate_inputs(
+            scene, x0, t0, t1, args, max_impacts=max_impacts, max_steps=max_steps,
+            direction=direction, allow_float32=allow_float32, saveat=saveat,
+        )
+        sol = _run_compiled(scene, checked, args, **options)
+    else:
+        sol = _run(scene, x0, t0, t1, args, saveat=saveat, direction=direction, **options)
+    _raise_if_bad_input(sol)
+    if throw:
+        sol = _throw_if_failed(sol)
+    return sol
+
+
+def _run(scene, x0, t0, t1, args, *, saveat, direction, adjoint, max_steps, **options):
+    """The run itself: one XLA program (prepare, loop, finish), no Python-side checks."""
     checked, program = prepare(
-        scene, x0, t0, t1, args, saveat=saveat, direction=direction,
-        allow_float32=allow_float32, solver=solver, rtol=rtol, atol=atol,
-        stepsize_controller=stepsize_controller, dt0=dt0, max_impacts=max_impacts,
-        max_steps=max_steps, zeno_rtol=zeno_rtol, zeno=zeno, adjoint=adjoint,
-        check_field_jumps=check_field_jumps,
+        scene, x0, t0, t1, args, saveat=saveat, direction=direction, adjoint=adjoint,
+        max_steps=max_steps, **options,
     )
 
     def cond(c):
@@ -198,11 +223,33 @@ def simulate(
         return eqxi.unvmap_any(program.running(c))
 
     final = run_loop(cond, program, program.init(checked.x0, args), adjoint, max_steps)
-    sol = program.finish(final)
-    _raise_if_bad_input(sol)
-    if throw:
-        sol = _throw_if_failed(sol)
-    return sol
+    return program.finish(final)
+
+
+# A call outside jit used to run the loop's `while` as its own program, traced and compiled
+# again at every call (~1.5 s each for ex1dof, 20 impacts), with everything around it
+# dispatched op by op. As one jitted program, a repeated call with the same scene and
+# options runs at once (x0, t0, t1, array args and Python floats in args are inputs).
+_compiled_run = single_run_jit(_run)
+
+
+def _run_compiled(scene, checked, args, **options):
+    """The run of checked concrete inputs, as the cached program. (Scene functions are
+    traced with abstract `args` by the input checks already, so none can read a float of
+    `args` in Python: passing the floats as inputs changes no scene's behaviour.)"""
+    return _compiled_run(scene, checked.x0, checked.t0, checked.t1, _traced_numbers(args),
+                         saveat=checked.ts, direction=checked.sigma, **options)
+
+
+def _traced_numbers(args):
+    """`args` with its Python floats as arrays (inputs of the compiled run, so that a new
+    value does not compile it again); `args` itself if it has none. Ints, bools and other
+    leaves stay static."""
+    leaves, tree = jax.tree.flatten(args)
+    if not any(isinstance(leaf, float | np.floating) for leaf in leaves):
+        return args
+    return jax.tree.unflatten(tree, [jnp.asarray(leaf) if isinstance(leaf, float | np.floating)
+                                     else leaf for leaf in leaves])
 
 
 def run_loop(cond, program: "Program", init, adjoint, max_steps: int):

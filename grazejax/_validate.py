@@ -177,8 +177,21 @@ def _check_scene_shapes(scene: Scene, x0, t0, args):
     def shape_of(fn, what):
         try:
             return jax.eval_shape(fn, t0, x0, args)
+        except (jax.errors.ConcretizationTypeError, jax.errors.TracerArrayConversionError) as error:
+            raise TypeError(
+                f"{what} reads a value in Python (`if`, `float()`, NumPy) on a state of shape "
+                f"{n}: scene functions are traced, so x, t and every leaf of args (Python "
+                "floats included) are JAX values there. Use jnp.where or lax.cond on them, "
+                f"or keep a fixed choice out of args (in the function itself). JAX said: {error}"
+            ) from error
         except Exception as error:  # noqa: BLE001 - re-raised with context
-            raise type(error)(f"{what} failed on a state of shape {n}: {error}") from error
+            context = f"{what} failed on a state of shape {n}"
+            try:
+                wrapped = type(error)(f"{context}: {error}")
+            except Exception:  # noqa: BLE001 - a type that is not built from a message
+                error.add_note(f"grazejax: {context}")
+                raise error from None
+            raise wrapped from error
 
     out = shape_of(scene.vector_field, "vector_field(t, x, args)")
     if getattr(out, "shape", None) != n:
