@@ -42,7 +42,14 @@ from ._adjoint import REVERSE_HINT, loop_kinds
 from ._compiler import single_run_jit
 from ._loop.policies import AbstractZenoPolicy, sliding_phases
 from ._loop.program import Program, build_program
-from ._loop.state import flush_log, has_staged_rows, impact_log, packing, stage_log
+from ._loop.state import (
+    flush_log,
+    has_staged_rows,
+    impact_log,
+    packing,
+    stage_log,
+    with_full_log,
+)
 from ._scene import Scene
 from ._solution import ACCEPTED, FIELD_FIX, SimulationError, Solution, failure_message
 from ._status import Status
@@ -263,6 +270,8 @@ def run_loop(cond, program: "Program", init, adjoint, max_steps: int):
         checkpoints = _checkpoint_count(kinds.checkpoints, max_steps)
         if checkpoints is None:
             return _two_level_checkpointed(cond, program, init, max_steps + 1)
+        if checkpoints == max_steps + 1 and _stages_log(program, init):
+            return _every_step_staged(cond, program, init, max_steps + 1)
         pack, unpack = packing(init)
         final = eqxi.while_loop(
             lambda packed: cond(unpack(packed)),
@@ -340,6 +349,36 @@ def _two_level_checkpointed(cond, program: "Program", init, bound: int):
         kind="checkpointed", checkpoints=outer_bound, buffers=lambda packed: packed[1],
     )
     return unpack(final)
+
+
+def _every_step_staged(cond, program: "Program", init, bound: int):
+    """`while cond: step`, every step a checkpoint, with the impact log staged: the loop
+    carries one landing's rows, and each iteration moves the rows its step wrote to the
+    full log (the loop's write-once buffers) after the step. The step itself, and its VJP,
+    then run in a nested computation with small buffers only (`_nested`), while the full
+    log is written outside it. Forced impact oscillator, 1000-row log, one core, min of 7,
+    the previous commit alternately: 4.9/5.2× → 3.7/3.6× the primal at 10 impacts,
+    5.7/5.6× → 4.0/3.9× at 100; the same results and gradients (`tests/test_reverse.py`)."""
+    staged, full_log = stage_log(init, program.log_rows_per_landing)
+    pack, unpack = packing(staged)
+
+    def step(c):
+        # Row 0 of the staging log is the next impact: each iteration writes its own rows.
+        return program.step(eqx.tree_at(lambda z: z.log_base, c, c.num_impacts))
+
+    nested = _nested(step, pack, unpack)
+
+    def body(carry):
+        small, log = carry
+        small = nested(small)
+        return small, impact_log(flush_log(unpack(small), log))
+
+    small, log = eqxi.while_loop(
+        lambda carry: cond(unpack(carry[0])), body, (pack(staged), full_log),
+        max_steps=bound, kind="checkpointed", checkpoints=bound,
+        buffers=lambda carry: carry[1],
+    )
+    return with_full_log(unpack(small), log)
 
 
 def _nested(step, pack, unpack):

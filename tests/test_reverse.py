@@ -24,6 +24,7 @@ Compile time dominates: each (scene, mode) pair is compiled once at module level
 reused by every test that needs it.
 """
 
+import functools
 import math
 
 import diffrax
@@ -473,6 +474,58 @@ def test_checkpoints_at_max_steps_mean_every_step():
     for checkpoints in (6, 100):
         adjoint = diffrax.RecursiveCheckpointAdjoint(checkpoints=checkpoints)
         assert_close(jax.grad(lambda q, a=adjoint: state_sum(q, a)[0])(p), forward, MODES)
+
+
+def test_every_step_checkpoints_with_the_log_staged(monkeypatch):
+    """`checkpoints >= max_steps` with a log over 512 bytes: one loop, every step a
+    checkpoint, the log staged (`_every_step_staged`: each iteration moves the rows its
+    step wrote to the full log, a write-once buffer). The same primal results as the
+    forward-mode loop, and jacfwd's gradients: plain impacts, MAX_STEPS, sliding
+    (STICK/RELEASE rows) and two rows from one landing (simultaneous impacts)."""
+    import grazejax._simulate as simulate_module
+
+    taken = []
+    original = simulate_module.stage_log
+    monkeypatch.setattr(
+        simulate_module, "stage_log", lambda c, rows: taken.append(rows) or original(c, rows)
+    )
+    p = jnp.asarray(BALL_P)
+
+    def ball(q, adjoint, max_steps, zeno="stop", t1=BALL_T):
+        return gj.simulate(BALL, q[:2], 0.0, t1, {"g": q[2], "e": q[3]}, adjoint=adjoint,
+                           max_steps=max_steps, max_impacts=100, zeno=zeno, **TIGHT)
+
+    def walls(q, adjoint, max_steps):
+        field = lambda t, x, a: jnp.stack([x[2], x[3], 0.0 * x[2], -a["g"] + 0.0 * x[3]])  # noqa: E731
+        floor = gj.Surface(phi=lambda t, x, a: x[1], jump=lambda t, x, a: x.at[3].set(-a["e"] * x[3]))
+        wall = gj.Surface(phi=lambda t, x, a: x[0], jump=lambda t, x, a: x.at[2].set(-a["e"] * x[2]))
+        return gj.simulate(gj.Scene(field, [floor, wall]), q[:4], 0.0, 0.8,
+                           {"g": 9.81, "e": q[4]}, adjoint=adjoint, max_steps=max_steps,
+                           max_impacts=40, **TIGHT)
+
+    runs = [  # (run, inputs, max_steps, status)
+        (ball, p, 60, gj.Status.SUCCESS),
+        (ball, p, 6, gj.Status.MAX_STEPS),
+        (functools.partial(ball, zeno="stick", t1=6.0), p, 2000, gj.Status.SUCCESS),
+        (walls, jnp.array([0.5, 9.81 * 0.5**2 / 2, -1.0, 0.0, 0.8]), 100, gj.Status.SUCCESS),
+    ]
+    for run, q, max_steps, status in runs:
+        every = diffrax.RecursiveCheckpointAdjoint(checkpoints=max_steps)
+        plain = run(q, None, max_steps)
+        taken.clear()
+        checkpointed = run(q, every, max_steps)
+        assert taken  # the staged every-step loop
+        assert gj.Status(int(plain.status)) == status
+        for field in ("t_final", "x_final", "num_impacts", "impact_times", "impact_pre",
+                      "impact_kind", "impact_surface", "status"):
+            np.testing.assert_array_equal(getattr(checkpointed, field), getattr(plain, field))
+
+        def loss(z, adjoint, run=run, max_steps=max_steps):
+            sol = run(z, adjoint, max_steps)
+            return jnp.nansum(sol.impact_times) + jnp.sum(sol.x_final)
+
+        assert_close(jax.grad(lambda z, every=every: loss(z, every))(q),
+                     jax.jacfwd(lambda z: loss(z, None))(q), MODES)
 
 
 def test_default_checkpoints_two_levels(monkeypatch):

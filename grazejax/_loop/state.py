@@ -291,7 +291,12 @@ def flush_log(c: LoopState, full_log) -> LoopState:
     for j in range(staged[0].shape[0]):
         row = tuple(r[j] for r in staged)
         full_log = write_log(full_log, base + j, j < c.num_impacts - base, *row)
-    return _set_fields(c, LOG + ("log_base",), full_log + (None,))
+    return with_full_log(c, full_log)
+
+
+def with_full_log(c: LoopState, full_log) -> LoopState:
+    """The state with `full_log` as its impact log (no staging)."""
+    return _set_fields(c, LOG + ("log_base",), tuple(full_log) + (None,))
 
 
 def two_sum(a, b):
