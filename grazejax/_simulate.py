@@ -206,7 +206,10 @@ def simulate(
             scene, x0, t0, t1, args, max_impacts=max_impacts, max_steps=max_steps,
             direction=direction, allow_float32=allow_float32, saveat=saveat,
         )
-        sol = _run_compiled(scene, checked, args, **options)
+        sol = _compiled_run(
+            scene, checked.x0, checked.t0, checked.t1, _traced_numbers(args),
+            saveat=checked.ts, direction=checked.sigma, **options,
+        )
     else:
         sol = _run(scene, x0, t0, t1, args, saveat=saveat, direction=direction, **options)
     _raise_if_bad_input(sol)
@@ -236,22 +239,18 @@ def _run(scene, x0, t0, t1, args, *, saveat, direction, adjoint, max_steps, **op
 # A call outside jit used to run the loop's `while` as its own program, traced and compiled
 # again at every call (~1.5 s each for ex1dof, 20 impacts), with everything around it
 # dispatched op by op. As one jitted program, a repeated call with the same scene and
-# options runs at once (x0, t0, t1, array args and Python floats in args are inputs).
+# options runs at once (x0, t0, t1, array args and Python floats in args are inputs; the
+# input checks already trace scene functions with abstract `args`, so no scene can read a
+# float of `args` in Python, and passing the floats as inputs changes no scene's behaviour).
 _compiled_run = single_run_jit(_run)
-
-
-def _run_compiled(scene, checked, args, **options):
-    """The run of checked concrete inputs, as the cached program. (Scene functions are
-    traced with abstract `args` by the input checks already, so none can read a float of
-    `args` in Python: passing the floats as inputs changes no scene's behaviour.)"""
-    return _compiled_run(scene, checked.x0, checked.t0, checked.t1, _traced_numbers(args),
-                         saveat=checked.ts, direction=checked.sigma, **options)
 
 
 def _traced_numbers(args):
     """`args` with its Python floats as arrays (inputs of the compiled run, so that a new
     value does not compile it again); `args` itself if it has none. Ints, bools and other
-    leaves stay static."""
+    leaves stay static. (Not `_linearize._args_arrays`, which makes ints floats and floats
+    strong float64 for differentiating with respect to them: here an int may be an index,
+    and a float32 run keeps its weak floats.)"""
     leaves, tree = jax.tree.flatten(args)
     if not any(isinstance(leaf, float | np.floating) for leaf in leaves):
         return args
