@@ -2,15 +2,17 @@
 
 The loop is a while loop of solver steps, and each Runge–Kutta step has a loop over its
 stages. JAX differentiates while loops in forward mode only (`lax.while_loop`); reverse mode
-needs Equinox's checkpointed loop (a `custom_vjp`, which forward mode cannot enter), and
-Equinox's bounded loop (nested scans) supports both at the price of storing every step.
+needs Equinox's checkpointed loop or grazejax's loop that stores each step's linearisation
+(`_loop/stored.py`; both `custom_vjp`s, which forward mode cannot enter), and Equinox's
+bounded loop (nested scans) supports both at the price of storing every step.
 So the choice is the user's, in Diffrax's words:
 
 | `adjoint=`                                | jax.jacfwd | jax.grad | cost                                |
 |-------------------------------------------|------------|----------|-------------------------------------|
 | `None`, `diffrax.ForwardMode()`           | yes        | no       | the primal's                        |
-| `diffrax.RecursiveCheckpointAdjoint()`    | no         | yes      | a 2nd forward pass, 2√max_steps carries |
+| `diffrax.RecursiveCheckpointAdjoint()`    | no         | yes      | a 2nd forward pass, √max_steps carries and residual rows |
 | `diffrax.RecursiveCheckpointAdjoint(n)`   | no         | yes      | recomputation, n carries            |
+| `RecursiveCheckpointAdjoint(n ≥ max_steps)` | no       | yes      | no recomputation, a residual row per step |
 | `diffrax.DirectAdjoint()`                 | yes        | yes      | memory for every step               |
 
 Event times never need a loop's derivative: the root searches locate them without

@@ -50,6 +50,7 @@ from ._loop.state import (
     stage_log,
     with_full_log,
 )
+from ._loop.stored import residual_bytes, stored_while_loop
 from ._scene import Scene
 from ._solution import ACCEPTED, FIELD_FIX, SimulationError, Solution, failure_message
 from ._status import Status
@@ -133,10 +134,11 @@ def simulate(
       `None`/`diffrax.ForwardMode()` (default): `jax.jvp`/`jax.jacfwd`;
       `diffrax.RecursiveCheckpointAdjoint(checkpoints=...)`: `jax.grad`/`jax.vjp`
       (`checkpoints=None`, the default: the state every ~√max_steps steps and at each
-      impact, and every step of one such chunk at a time in the backward pass,
-      ~2√max_steps + max_impacts carries in all; an integer c: Equinox's recursive
-      schedule with c checkpoints; `checkpoints >= max_steps` stores every step, the
-      fastest reverse pass when `max_steps` bounds the run closely);
+      impact, and, while the backward pass crosses one such chunk, each of its steps'
+      linearisation: ~√max_steps + max_impacts carries and ~√max_steps rows of
+      residuals; an integer c: Equinox's recursive schedule with c checkpoints;
+      `checkpoints >= max_steps` stores every step's linearisation and runs no step
+      twice, the fastest reverse pass when `max_steps` bounds the run closely);
       `diffrax.DirectAdjoint()`: both modes, at the
       memory cost of every step. Event-time tangents are the same in every mode (the
       implicit function theorem at the landing step).
@@ -269,6 +271,8 @@ def run_loop(cond, program: "Program", init, adjoint, max_steps: int):
         checkpoints = _checkpoint_count(kinds.checkpoints, max_steps)
         if checkpoints is None:
             return _two_level_checkpointed(cond, program, init, max_steps + 1)
+        if checkpoints == max_steps + 1 and _stores_pay(program, init):
+            return _every_step_stored(cond, program, init, max_steps + 1)
         if checkpoints == max_steps + 1 and _stages_log(program, init):
             return _every_step_staged(cond, program, init, max_steps + 1)
         pack, unpack = packing(init)
@@ -290,28 +294,27 @@ def run_loop(cond, program: "Program", init, adjoint, max_steps: int):
 
 def _two_level_checkpointed(cond, program: "Program", init, bound: int):
     """`while cond: step` for at most `bound` iterations, reverse-differentiable with
-    two levels of checkpoints: the state every `chunk ≈ √bound` steps, and, while the
-    backward pass goes through a chunk, every step of that chunk.
+    two levels: an Equinox checkpointed loop stores the state every `chunk ≈ √bound`
+    steps, and each chunk is a loop that stores its steps' linearisations
+    (`_loop/stored.py`) while the backward pass crosses it, or, where a step's residuals
+    are large (`_stores_pay`), an Equinox loop with a checkpoint per step. The price is
+    one more forward pass over each chunk; memory: ~√bound carries and `chunk` rows of
+    residuals (or carries), whatever the run's length.
 
-    Both levels are Equinox checkpointed loops with as many checkpoints as iterations, the
-    case in which Equinox stores every iteration and recomputes nothing in its backward
-    loop; the price is one more forward pass over each chunk. Memory: ~2√bound carries
-    (~160 KiB for the default `max_steps` and a 2-dimensional state), whatever the run's
-    length. Against Equinox's own schedule with its default checkpoints (√(2·bound) ≈ 447,
-    recursive recomputation), forced impact oscillator, one core, min of 7, same process:
-    gradient 10.2× → 8.0× the primal at 100 impacts, 11.0× → 8.3× at 1000, 6.7× → 7.0× at
-    10 (where those 447 checkpoints already hold nearly every step); gradients equal to
-    2e-14. The chunk length does not matter (64 or 2048 steps: the same within 1%).
+    History, forced impact oscillator, one core, min of 7, each against the previous code
+    in the same minutes: Equinox's own schedule (√(2·bound) ≈ 447 checkpoints, recursive
+    recomputation) 10.2/11.0x the primal at 100/1000 impacts -> two levels of Equinox
+    loops with a checkpoint per iteration 8.0/8.3x; the log staged (below) 5.9/6.7/6.8x
+    at 10/100/1000 impacts; each step as a nested computation (`_nested`)
+    4.7/4.8/5.0x; the chunks as loops that store linearisations (no step of a chunk run
+    a third time in the backward pass) 4.55/4.82/4.97x -> 4.05-4.20/4.13-4.31/4.34-4.39x,
+    gradients bit-equal. The chunk length mattered little (64 or 2048 steps: within 1%).
 
     Where a single run stages its log (`_stages_log`), an outer iteration also ends at a
     landing that wrote rows, and moves them to the full log (the outer loop's write-once
     buffers; ~one more carry per log row). The inner loop then carries one landing's rows
-    instead of the whole log as buffers, so its forward passes run on XLA's sequential
-    executor as the primal does: 5.9/6.7/6.8× at 10/100/1000 impacts (that run's 1000-row
-    log). Each step of both inner loops runs as a nested computation (`_nested`), outside
-    the dataflow executor that the checkpoint stores call for: 6.8/6.9/7.1× → 4.7/4.8/5.0×
-    (forced impact oscillator, one core, min of 7, the previous commit alternately;
-    gradients equal to 1.1e-15).
+    instead of the whole log, so its passes run on XLA's sequential executor as the
+    primal does.
     """
     chunk = math.isqrt(bound - 1) + 1
     outer_bound = -(-bound // chunk)
@@ -323,23 +326,29 @@ def _two_level_checkpointed(cond, program: "Program", init, bound: int):
         # one per row of the log, and the one that fills it ends the run), or at the end.
         outer_bound += impact_log(init)[0].shape[0] + 2
         inner_pack, inner_unpack = packing(stage_log(init, rows)[0])
-        inner_buffers = None  # (the staging rows are carried)
     else:
         inner_pack, inner_unpack = pack, unpack
-        inner_buffers = lambda packed: packed[1]  # noqa: E731
 
     def inner_cond(packed):
         z = inner_unpack(packed)
         return cond(z) & ~eqxi.unvmap_any(has_staged_rows(z)) if staging else cond(z)
 
+    store_linearisations = _stores_pay(program, init)
+
     def outer_step(packed):
         c = unpack(packed)
         staged, full_log = stage_log(c, rows) if staging else (c, None)
-        staged = eqxi.while_loop(
-            inner_cond, _nested(program.step, inner_pack, inner_unpack),
-            inner_pack(staged), max_steps=chunk, kind="checkpointed", checkpoints=chunk,
-            buffers=inner_buffers,
-        )
+        if store_linearisations:
+            staged, _ = stored_while_loop(
+                inner_cond, lambda q: inner_pack(program.step(inner_unpack(q))),
+                inner_pack(staged), chunk,
+            )
+        else:
+            staged = eqxi.while_loop(
+                inner_cond, _nested(program.step, inner_pack, inner_unpack),
+                inner_pack(staged), max_steps=chunk, kind="checkpointed", checkpoints=chunk,
+                buffers=None if staging else lambda packed: packed[1],
+            )
         staged = inner_unpack(staged)
         return pack(flush_log(staged, full_log) if staging else staged)
 
@@ -348,6 +357,38 @@ def _two_level_checkpointed(cond, program: "Program", init, bound: int):
         kind="checkpointed", checkpoints=outer_bound, buffers=lambda packed: packed[1],
     )
     return unpack(final)
+
+
+def _every_step_stored(cond, program: "Program", init, bound: int):
+    """`while cond: step` for at most `bound` steps, every step's linearisation stored
+    (`_loop/stored.py`): the backward pass applies the stored pullbacks and runs no step
+    again. Where a single run stages its log (`_stages_log`), the loop carries one
+    landing's rows and writes them to the full log (write-once buffers) after the step
+    that staged them. Forced impact oscillator, 1000-row log, one core, min of 11, the
+    previous code (Equinox's checkpointed loop with a checkpoint per step) in the same
+    process: 3.55/3.90/3.92x -> 3.00/3.38/3.65x the primal at 10/100/1000 impacts."""
+    if not _stages_log(program, init):
+        pack, unpack = packing(init)
+        small, _ = stored_while_loop(
+            lambda packed: cond(unpack(packed)),
+            lambda packed: pack(program.step(unpack(packed))), pack(init), bound,
+        )
+        return unpack(small)
+    staged, full_log = stage_log(init, program.log_rows_per_landing)
+    pack, unpack = packing(staged)
+
+    def step(packed):
+        c = unpack(packed)
+        # Row 0 of the staging log is the next impact: each step stages its own rows.
+        return pack(program.step(eqx.tree_at(lambda z: z.log_base, c, c.num_impacts)))
+
+    small, log = stored_while_loop(
+        lambda packed: cond(unpack(packed)), step, pack(staged), bound,
+        buffers=full_log,
+        write=lambda packed, log: impact_log(flush_log(unpack(packed), log)),
+        ends_block=lambda packed: eqxi.unvmap_any(has_staged_rows(unpack(packed))),
+    )
+    return with_full_log(unpack(small), log)
 
 
 def _every_step_staged(cond, program: "Program", init, bound: int):
@@ -415,6 +456,24 @@ def _stages_log(program: "Program", init) -> bool:
     return rows > 0 and log_bytes > _SEQUENTIAL_BUFFER_BYTES and not _under_vmap(init)
 
 
+def _stores_pay(program: "Program", init) -> bool:
+    """Whether reverse mode stores each step's linearisation (`_loop/stored.py`) rather
+    than a carry per step that the backward pass runs again (Equinox's checkpointed loop).
+
+    Measured (one core, min of 7-11, both in the same process), every step stored / the
+    default two levels: forced impact oscillator, 864 bytes of residuals per step, 3.0x /
+    4.1-4.4x the primal against 3.55x / 4.5-5.0x; a Fourier forcing of 10/40/100
+    coefficients, 3/6/24 KB per step (the pieces the blocks stage them in, and their
+    store, cost more than a step's re-run): 4.7/6.0/6.4x / 5.5/7.6/10.9x against
+    4.0/4.9/4.3x / 5.3/6.3/5.8x.
+    """
+    if _stages_log(program, init):
+        init = stage_log(init, program.log_rows_per_landing)[0]
+    pack, unpack = packing(init)
+    step = lambda packed: pack(program.step(unpack(packed)))  # noqa: E731
+    return residual_bytes(step, pack(init)) <= _STORED_RESIDUAL_BYTES
+
+
 def _checkpoint_count(checkpoints: int | None, max_steps: int) -> int | None:
     """The checkpoints to ask Equinox for: `checkpoints >= max_steps` means every step.
 
@@ -455,6 +514,8 @@ def _under_vmap(tree) -> bool:
 
 # XLA:CPU's `ThunkExecutor::Options::execute_sequential_buffer_threshold` (see `stage_log`).
 _SEQUENTIAL_BUFFER_BYTES = 512
+# The most residual bytes per step that reverse mode stores (see `_stores_pay`).
+_STORED_RESIDUAL_BYTES = 1024
 
 
 def _staged_log_loop(cond, program: "Program", init):

@@ -119,6 +119,10 @@ def test_ball_grad_under_vmap_and_jit():
     for lane, p in enumerate(ps):
         assert_close(batched[lane], jax.grad(ball_loss_exact)(p), EXACT)
     assert_close(batched[0], ball_rca(ps[0]), MODES)
+    # Every step's linearisation stored, under vmap (the log then stays in the carry).
+    every = diffrax.RecursiveCheckpointAdjoint(checkpoints=DIRECT_STEPS)
+    stored = jax.jit(jax.vmap(jax.grad(lambda p: ball_loss(p, every, DIRECT_STEPS))))(ps)
+    assert_close(stored, batched, MODES)
 
 
 # ------------------------------------------------------------- wall saltation -------------
@@ -450,9 +454,8 @@ def test_simultaneous_impacts_overflowing_the_log():
 
 
 def test_checkpoints_at_max_steps_mean_every_step():
-    """`checkpoints >= max_steps` asks Equinox for a checkpoint at every one of the loop's
-    max_steps + 1 iterations (its fast backward pass; see `_checkpoint_count`), with the
-    same gradient as the default schedule."""
+    """`checkpoints >= max_steps` stores every one of the loop's max_steps + 1 iterations
+    (see `_checkpoint_count`), with the same gradient as the default schedule."""
     from grazejax._simulate import _checkpoint_count
 
     assert _checkpoint_count(None, 100) is None
@@ -476,10 +479,25 @@ def test_checkpoints_at_max_steps_mean_every_step():
         assert_close(jax.grad(lambda q, a=adjoint: state_sum(q, a)[0])(p), forward, MODES)
 
 
-def test_every_step_checkpoints_with_the_log_staged(monkeypatch):
-    """`checkpoints >= max_steps` with a log over 512 bytes: one loop, every step a
-    checkpoint, the log staged (`_every_step_staged`: each iteration moves the rows its
-    step wrote to the full log, a write-once buffer). The same primal results as the
+# Both ways of storing every step in reverse mode: each step's linearisation (small
+# residuals, `_loop/stored.py`) or its carry (Equinox's checkpointed loop), whichever
+# `_stores_pay` picks for a scene; both must give jacfwd's gradients. JAX's caches are
+# cleared around each, as `simulate`'s compiled programs do not depend on the threshold.
+@pytest.fixture(params=[True, False], ids=["linearisations", "carries"])
+def stores(request, monkeypatch):
+    import grazejax._simulate as simulate_module
+
+    jax.clear_caches()
+    request.addfinalizer(jax.clear_caches)
+    monkeypatch.setattr(simulate_module, "_STORED_RESIDUAL_BYTES",
+                        10**9 if request.param else -1)
+    return request.param
+
+
+def test_every_step_checkpoints_with_the_log_staged(monkeypatch, stores):
+    """`checkpoints >= max_steps` with a log over 512 bytes: one loop, every step's
+    linearisation stored, the log staged (`_every_step_stored`: the rows a step staged
+    move to the full log, a write-once buffer, after it). The same primal results as the
     forward-mode loop, and jacfwd's gradients: plain impacts, MAX_STEPS, sliding
     (STICK/RELEASE rows) and two rows from one landing (simultaneous impacts)."""
     import grazejax._simulate as simulate_module
@@ -528,9 +546,9 @@ def test_every_step_checkpoints_with_the_log_staged(monkeypatch):
                      jax.jacfwd(lambda z: loss(z, None))(q), MODES)
 
 
-def test_default_checkpoints_two_levels(monkeypatch):
-    """`RecursiveCheckpointAdjoint()` runs two levels of every-step checkpointed loops,
-    chunks of ~√max_steps steps (`_two_level_checkpointed`; with a log over 512 bytes its
+def test_default_checkpoints_two_levels(monkeypatch, stores):
+    """`RecursiveCheckpointAdjoint()` runs two levels of loops, chunks of ~√max_steps
+    steps that store their steps' linearisations (`_two_level_checkpointed`; with a log over 512 bytes its
     outer iterations also end at each landing with rows, the log staged). Small `max_steps` so that chunks end inside flights: gradients equal
     jacfwd's, also for runs that end at MAX_STEPS and at MAX_IMPACTS."""
     import grazejax._simulate as simulate_module
