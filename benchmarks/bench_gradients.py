@@ -212,7 +212,7 @@ def section_direct(sizes, max_repeats):
         )
         log(
             f"  bounded, {n} impacts: grad/primal {row['ratio_to_primal']:.2f} (direct), "
-            f"{row['every_step_ratio_to_primal']:.2f} (checkpoint every step); temp "
+            f"{row['every_step_ratio_to_primal']:.2f} (every step stored); temp "
             f"{row['grad_direct_temp_bytes'] / 2**20:.1f} / "
             f"{row['grad_rca_every_step_temp_bytes'] / 2**20:.1f} MiB"
         )
@@ -318,10 +318,11 @@ def _markdown(data):
     ]
     lines += [
         "**A bound on the steps** (max_steps = 1.5× the steps needed): `DirectAdjoint()`, and "
-        "`RecursiveCheckpointAdjoint(checkpoints=max_steps)` (every step a checkpoint):",
+        "`RecursiveCheckpointAdjoint(checkpoints=max_steps)` (every step stored: its "
+        "linearisation where small, else its carry):",
         "",
         "| impacts | steps | DirectAdjoint grad/primal | temp memory | "
-        "checkpoint every step grad/primal | temp memory | grads differ by |",
+        "every step stored grad/primal | temp memory | grads differ by |",
         "|---|---|---|---|---|---|---|",
     ]
     for r in data["direct"]:
