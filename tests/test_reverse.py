@@ -423,6 +423,31 @@ def test_periodic_orbit_grad_with_direct_adjoint():
         start(jnp.asarray(1.0), RCA)
 
 
+def test_saved_states_grad_equals_jacfwd():
+    """`saveat` in reverse mode: the saved states' gradient equals jacfwd's and central
+    differences, for save times inside flights, at an impact's flight, at t0 and at t1
+    (it was NaN: steps without saves evaluated the interpolant at s = -inf, and a zero
+    cotangent times an infinite partial is NaN), also under vmap."""
+    ts = jnp.array([0.0, 0.5, 1.0, 1.6, BALL_T])
+
+    def saved(q, adjoint, max_steps=100_000):
+        sol = gj.simulate(BALL, q[:2], 0.0, BALL_T, {"g": q[2], "e": q[3]}, adjoint=adjoint,
+                          max_steps=max_steps, max_impacts=8, saveat=ts, **TIGHT)
+        return jnp.sum(sol.xs * jnp.array([1.0, 0.5]))
+
+    p = jnp.asarray(BALL_P)
+    forward = jax.jacfwd(lambda q: saved(q, None))(p)
+    assert np.all(np.isfinite(forward))
+    assert_close(forward, central_differences(lambda q: saved(q, None), BALL_P, FD_STEP), FD)
+    every = diffrax.RecursiveCheckpointAdjoint(checkpoints=DIRECT_STEPS)
+    for adjoint, steps in ((RCA, 100_000), (every, DIRECT_STEPS), (DIRECT, DIRECT_STEPS)):
+        reverse = jax.grad(lambda q, a=adjoint, m=steps: saved(q, a, m))(p)
+        assert_close(reverse, forward, MODES)
+    ps = jnp.stack([p, p * jnp.array([1.1, 1.0, 1.0, 0.95])])
+    batched = jax.jit(jax.vmap(jax.grad(lambda q: saved(q, RCA))))(ps)
+    assert_close(batched, jax.vmap(jax.jacfwd(lambda q: saved(q, None)))(ps), MODES)
+
+
 def test_simultaneous_impacts_overflowing_the_log():
     """Two walls met at the same instant with room for one log row: the run ends
     MAX_IMPACTS, and reverse mode (whose log is a write-once buffer) gives jacfwd's

@@ -305,6 +305,16 @@ def _next_state(ctx: LoopContext, c: LoopState, taken: Step, found: Detection,
     )
 
 
+def _zero_interpolant_unless(use, interp):
+    """`interp` where `use`, else the same interpolant with zero coefficients on [0, 1]
+    (finite everywhere, and so are its partials)."""
+    zeroed = jax.tree.map(
+        lambda a: jnp.where(use, a, jnp.zeros_like(a))
+        if eqx.is_inexact_array(a) else a, interp,
+    )
+    return eqx.tree_at(lambda i: i.t1, zeroed, jnp.where(use, interp.t1, 1.0))
+
+
 def _save(ctx: LoopContext, c: LoopState, interp, sa, s_stop):
     """Save the dense output at the requested times in (sa, s_stop] (compiled only with
     `saveat`)."""
@@ -321,7 +331,15 @@ def _save(ctx: LoopContext, c: LoopState, interp, sa, s_stop):
         j = jnp.arange(num)
         s_j = local(j)
         mine = (j >= c.save_index) & (s_j <= s_stop)
-        values = jax.vmap(lambda s_: interp.evaluate(jnp.clip(s_, sa, s_stop)))(s_j)
+        # Every evaluation must be finite with finite partials, kept or not: reverse mode
+        # multiplies the zero cotangent of a discarded value by them (0 × inf is NaN).
+        # On a step without saves (s_stop = -inf on rejections, whose stages may be
+        # huge), evaluate a zero polynomial on [0, 1] instead; on a step with saves, at
+        # times clipped into the step. (jax.grad with saveat was NaN before.)
+        saves = jnp.any(mine)
+        safe = _zero_interpolant_unless(saves, interp)
+        s_top = jnp.maximum(s_stop, sa)
+        values = jax.vmap(lambda s_: safe.evaluate(jnp.clip(s_, sa, s_top)))(s_j)
         save_xs = jnp.where(mine[:, None], values, c.save_xs)
         return c.save_index + jnp.sum(mine), save_xs
 
