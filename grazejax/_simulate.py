@@ -307,8 +307,8 @@ def _two_level_checkpointed(cond, program: "Program", init, bound: int):
     loops with a checkpoint per iteration 8.0/8.3x; the log staged (below) 5.9/6.7/6.8x
     at 10/100/1000 impacts; each step as a nested computation (`_nested`)
     4.7/4.8/5.0x; the chunks as loops that store linearisations (no step of a chunk run
-    a third time in the backward pass) 4.55/4.82/4.97x -> 4.05-4.20/4.13-4.31/4.34-4.39x,
-    gradients bit-equal. The chunk length mattered little (64 or 2048 steps: within 1%).
+    a third time in the backward pass) 4.53/4.69/4.96x -> 3.97/4.16/4.42x (same process,
+    min of 9), gradients bit-equal. The chunk length mattered little (64 or 2048 steps: within 1%).
 
     Where a single run stages its log (`_stages_log`), an outer iteration also ends at a
     landing that wrote rows, and moves them to the full log (the outer loop's write-once
@@ -364,9 +364,9 @@ def _every_step_stored(cond, program: "Program", init, bound: int):
     (`_loop/stored.py`): the backward pass applies the stored pullbacks and runs no step
     again. Where a single run stages its log (`_stages_log`), the loop carries one
     landing's rows and writes them to the full log (write-once buffers) after the step
-    that staged them. Forced impact oscillator, 1000-row log, one core, min of 11, the
-    previous code (Equinox's checkpointed loop with a checkpoint per step) in the same
-    process: 3.55/3.90/3.92x -> 3.00/3.38/3.65x the primal at 10/100/1000 impacts."""
+    that staged them. Forced impact oscillator, 1000-row log, one core, min of 9, against
+    Equinox's checkpointed loop with a checkpoint per step in the same process:
+    3.56/3.76/3.92x -> 2.94/3.24/3.76x the primal at 10/100/1000 impacts."""
     if not _stages_log(program, init):
         pack, unpack = packing(init)
         small, _ = stored_while_loop(
