@@ -119,7 +119,7 @@ def test_ball_grad_under_vmap_and_jit():
     for lane, p in enumerate(ps):
         assert_close(batched[lane], jax.grad(ball_loss_exact)(p), EXACT)
     assert_close(batched[0], ball_rca(ps[0]), MODES)
-    # Every step's linearisation stored, under vmap (the log then stays in the carry).
+    # Every step stored, under vmap (as carries: `_stores_pay`; the log in the carry).
     every = diffrax.RecursiveCheckpointAdjoint(checkpoints=DIRECT_STEPS)
     stored = jax.jit(jax.vmap(jax.grad(lambda p: ball_loss(p, every, DIRECT_STEPS))))(ps)
     assert_close(stored, batched, MODES)
