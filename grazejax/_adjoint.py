@@ -10,7 +10,7 @@ So the choice is the user's, in Diffrax's words:
 | `adjoint=`                                | jax.jacfwd | jax.grad | cost                                |
 |-------------------------------------------|------------|----------|-------------------------------------|
 | `None`, `diffrax.ForwardMode()`           | yes        | no       | the primal's                        |
-| `diffrax.RecursiveCheckpointAdjoint()`    | no         | yes      | a 2nd forward pass, √max_steps carries and residual rows |
+| `diffrax.RecursiveCheckpointAdjoint()`    | no         | yes      | a 2nd forward pass, √max_steps carries and residual rows (carries: large residuals, vmap) |
 | `diffrax.RecursiveCheckpointAdjoint(n)`   | no         | yes      | recomputation, n carries            |
 | `RecursiveCheckpointAdjoint(n ≥ max_steps)` | no       | yes      | no recomputation, a residual row per step |
 | `diffrax.DirectAdjoint()`                 | yes        | yes      | memory for every step               |
