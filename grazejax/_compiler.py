@@ -115,3 +115,9 @@ def single_run_jit(fn):
 
 def _traced(args, kwargs) -> bool:
     return any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves((args, kwargs)))
+
+
+# XLA:CPU's `ThunkExecutor::Options::execute_sequential_buffer_threshold`: a sequence of
+# kernels (a loop body, a branch) runs one after another only if none of them touches a
+# buffer over this many bytes (see `_loop/state.py: stage_log`, `_loop/stored.py`).
+SEQUENTIAL_BUFFER_BYTES = 512

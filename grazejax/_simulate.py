@@ -39,7 +39,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._adjoint import REVERSE_HINT, loop_kinds
-from ._compiler import single_run_jit
+from ._compiler import SEQUENTIAL_BUFFER_BYTES, single_run_jit
 from ._loop.policies import AbstractZenoPolicy, sliding_phases
 from ._loop.program import Program, build_program
 from ._loop.state import (
@@ -378,9 +378,7 @@ def _every_step_stored(cond, program: "Program", init, bound: int):
     pack, unpack = packing(staged)
 
     def step(packed):
-        c = unpack(packed)
-        # Row 0 of the staging log is the next impact: each step stages its own rows.
-        return pack(program.step(eqx.tree_at(lambda z: z.log_base, c, c.num_impacts)))
+        return pack(_staging_own_rows(program)(unpack(packed)))
 
     small, log = stored_while_loop(
         lambda packed: cond(unpack(packed)), step, pack(staged), bound,
@@ -402,11 +400,7 @@ def _every_step_staged(cond, program: "Program", init, bound: int):
     staged, full_log = stage_log(init, program.log_rows_per_landing)
     pack, unpack = packing(staged)
 
-    def step(c):
-        # Row 0 of the staging log is the next impact: each iteration writes its own rows.
-        return program.step(eqx.tree_at(lambda z: z.log_base, c, c.num_impacts))
-
-    nested = _nested(step, pack, unpack)
+    nested = _nested(_staging_own_rows(program), pack, unpack)
 
     def body(carry):
         small, log = carry
@@ -419,6 +413,16 @@ def _every_step_staged(cond, program: "Program", init, bound: int):
         buffers=lambda carry: carry[1],
     )
     return with_full_log(unpack(small), log)
+
+
+def _staging_own_rows(program: "Program"):
+    """The step of the every-step loops that stage the log: row 0 of the staging log is
+    the next impact, so each step stages its own rows (flushed after it)."""
+
+    def step(c):
+        return program.step(eqx.tree_at(lambda z: z.log_base, c, c.num_impacts))
+
+    return step
 
 
 def _nested(step, pack, unpack):
@@ -453,7 +457,7 @@ def _stages_log(program: "Program", init) -> bool:
     log_bytes = max(
         math.prod(jnp.shape(b)) * jnp.result_type(b).itemsize for b in impact_log(init)
     )
-    return rows > 0 and log_bytes > _SEQUENTIAL_BUFFER_BYTES and not _under_vmap(init)
+    return rows > 0 and log_bytes > SEQUENTIAL_BUFFER_BYTES and not _under_vmap(init)
 
 
 def _stores_pay(program: "Program", init) -> bool:
@@ -516,8 +520,6 @@ def _under_vmap(tree) -> bool:
     return False
 
 
-# XLA:CPU's `ThunkExecutor::Options::execute_sequential_buffer_threshold` (see `stage_log`).
-_SEQUENTIAL_BUFFER_BYTES = 512
 # The most residual bytes per step that reverse mode stores (see `_stores_pay`).
 _STORED_RESIDUAL_BYTES = 1024
 

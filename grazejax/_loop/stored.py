@@ -30,8 +30,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
-# XLA:CPU's `execute_sequential_buffer_threshold` (see `_simulate._SEQUENTIAL_BUFFER_BYTES`).
-_SEQUENTIAL_BYTES = 512
+from .._compiler import SEQUENTIAL_BUFFER_BYTES
 
 
 def stored_while_loop(
@@ -91,7 +90,7 @@ class _Fns:
 
 class _Layout:
     """Pytree leaves packed in pieces, per dtype, small enough that a block of `block`
-    rows of a piece stays within `_SEQUENTIAL_BYTES` (XLA:CPU's sequential-executor threshold):
+    rows of a piece stays within `SEQUENTIAL_BUFFER_BYTES` (XLA:CPU's sequential-executor threshold):
     the inner loops stage their rows in such pieces. Whole leaves go to a piece where they
     fit (one concatenation per piece: cutting a flat row at fixed widths cost ~60 slices
     per step), larger leaves are cut."""
@@ -102,7 +101,7 @@ class _Layout:
         self.dtypes = list(dict.fromkeys(jnp.result_type(x) for x in leaves))
         self.pieces = []  # per piece: (group, [(leaf, start, stop)], width)
         for g, d in enumerate(self.dtypes):
-            width = (max(1, _SEQUENTIAL_BYTES // (block * np.dtype(d).itemsize)) if block
+            width = (max(1, SEQUENTIAL_BUFFER_BYTES // (block * np.dtype(d).itemsize)) if block
                      else sum(int(np.prod(jnp.shape(x))) for x in leaves
                               if jnp.result_type(x) == d))
             current, used = [], 0
@@ -142,9 +141,6 @@ class _Layout:
             for ps, shape in zip(parts, self.shapes, strict=True)
         ]
         return jax.tree.unflatten(self.treedef, leaves)
-
-    def staging(self, block: int):
-        return tuple(jnp.zeros((block, n), self.dtypes[g]) for g, _, n in self.pieces)
 
     def stores(self, rows: int):
         return tuple(jnp.zeros((rows, n), self.dtypes[g]) for g, _, n in self.pieces)
@@ -230,9 +226,8 @@ def _find_layouts(fns, small, buffers, step_consts, write_consts):
         small, (leaves, treedef) = _step_linearised(fns, small, step_consts)
         # Pieces only where the step's own buffers are small: otherwise its loop runs on
         # the dataflow executor anyway, and one row per dtype costs the fewest kernels.
-        small_buffers = all(
-            np.prod(jnp.shape(x)) * jnp.result_type(x).itemsize <= _SEQUENTIAL_BYTES
-            for x in jax.tree.leaves((small, step_consts)))
+        small_buffers = all(_nbytes(x) <= SEQUENTIAL_BUFFER_BYTES
+                            for x in jax.tree.leaves((small, step_consts)))
         fns.step_layout = _Layout(leaves, treedef, fns.block if small_buffers else None)
         _, (leaves, treedef) = _write_linearised(fns, small, buffers, write_consts)
         fns.write_layout = _Layout(leaves, treedef, 1)
@@ -264,7 +259,7 @@ def _fwd(fns, small, buffers, tests, step_consts, write_consts):
     def outer_step(state):
         b, k, small, buffers, step_stores, write_stores, starts = state
         j, k_next, small, staging = lax.while_loop(
-            inner_more, inner_step, (jnp.asarray(0), k, small, step_layout.staging(block)))
+            inner_more, inner_step, (jnp.asarray(0), k, small, step_layout.stores(block)))
         buffers, (leaves, _) = _write_linearised(fns, small, buffers, write_consts)
         step_stores = tuple(lax.dynamic_update_slice_in_dim(s, r, k, 0)
                             for s, r in zip(step_stores, staging, strict=True))
