@@ -40,6 +40,7 @@ import numpy as np
 
 from ._adjoint import REVERSE_HINT, loop_kinds
 from ._compiler import SEQUENTIAL_BUFFER_BYTES, single_run_jit
+from ._loop.bounded import bounded_while_loop
 from ._loop.policies import AbstractZenoPolicy, sliding_phases
 from ._loop.program import Program, build_program
 from ._loop.state import (
@@ -50,6 +51,7 @@ from ._loop.state import (
     stage_log,
     with_full_log,
 )
+from ._loop.step import NO_DECISIONS
 from ._loop.stored import residual_bytes, stored_while_loop
 from ._scene import Scene
 from ._solution import ACCEPTED, FIELD_FIX, SimulationError, Solution, failure_message
@@ -276,20 +278,14 @@ def run_loop(cond, program: "Program", init, adjoint, max_steps: int):
         if checkpoints == max_steps + 1 and _stages_log(program, init):
             return _every_step_staged(cond, program, init, max_steps + 1)
         pack, unpack = packing(init)
-        final = eqxi.while_loop(
-            lambda packed: cond(unpack(packed)),
-            _nested(program.step, pack, unpack),
-            pack(init), max_steps=max_steps + 1, kind=kinds.outer,
-            checkpoints=checkpoints, buffers=lambda packed: packed[1],
-        )
+        final, _ = _checkpointed_deciding(
+            lambda packed: cond(unpack(packed)), program, pack, unpack, init, max_steps + 1,
+            checkpoints, buffers=True)
         return unpack(final)
-    # DirectAdjoint's bounded loop keeps the log in its carry: with the log as buffers it
-    # took 8–10× the primal at 10 impacts against 4.6× before (separate runs on a loaded
-    # machine; not adopted without a side-by-side measurement).
-    return eqxi.while_loop(
-        cond, program.step, init, max_steps=max_steps + 1, kind=kinds.outer,
-        checkpoints=kinds.checkpoints,
-    )
+    # DirectAdjoint: nested scans whose recomputation replays the step decisions
+    # (`_loop/bounded.py`). The log stays in the carry: as Equinox buffers it took 8–10×
+    # the primal at 10 impacts against 4.6× (separate runs on a loaded machine).
+    return bounded_while_loop(cond, program.step, init, max_steps + 1)
 
 
 def _two_level_checkpointed(cond, program: "Program", init, bound: int):
@@ -309,6 +305,13 @@ def _two_level_checkpointed(cond, program: "Program", init, bound: int):
     4.7/4.8/5.0x; the chunks as loops that store linearisations (no step of a chunk run
     a third time in the backward pass) 4.53/4.69/4.96x -> 3.97/4.16/4.42x (same process,
     min of 9), gradients bit-equal. The chunk length mattered little (64 or 2048 steps: within 1%).
+
+    The backward pass runs each chunk again from its checkpoint: the first pass records
+    every step's decisions (a row per step, a write-once buffer) and the re-run replays
+    them (`_loop/step.py: replay_decisions`), so that XLA's different
+    rounding of the re-run cannot make it take other steps (gradients were off by up to
+    3.3e-8 relative at rtol = 1e-12). Cost, alternately with the code before (two rounds):
+    4.2-4.5/4.5/4.5-4.6x the primal at 10/100/1000 impacts against 3.8-4.3/4.3/4.5x.
 
     Where a single run stages its log (`_stages_log`), an outer iteration also ends at a
     landing that wrote rows, and moves them to the full log (the outer loop's write-once
@@ -334,29 +337,88 @@ def _two_level_checkpointed(cond, program: "Program", init, bound: int):
         return cond(z) & ~eqxi.unvmap_any(has_staged_rows(z)) if staging else cond(z)
 
     store_linearisations = _stores_pay(program, init)
+    # The step decisions, recorded by the first pass and replayed where the backward pass
+    # runs a chunk again (`_loop/step.py: replay_decisions`): row n for a lane's step n
+    # (a chunk writes `chunk` rows from its first step; rows past its last step are
+    # written again by the next chunk), an Equinox buffer (its backward pass reads it
+    # filled). (A row per outer iteration would grow with the log: staged landings end
+    # outer iterations.)
+    record = unrecorded_decisions(init, (bound + chunk,))
 
-    def outer_step(packed):
+    def outer_step(carry):
+        packed, record = carry
         c = unpack(packed)
+        chunk_steps = c.num_steps + jnp.arange(chunk)
+        forced = jax.lax.stop_gradient(_row(record, chunk_steps))
         staged, full_log = stage_log(c, rows) if staging else (c, None)
         if store_linearisations:
-            staged, _ = stored_while_loop(
-                inner_cond, lambda q: inner_pack(program.step(inner_unpack(q))),
-                inner_pack(staged), chunk,
+            staged, _, decided = stored_while_loop(
+                inner_cond, _packed_deciding(program, inner_pack, inner_unpack),
+                inner_pack(staged), chunk, replay=forced,
             )
         else:
-            staged = eqxi.while_loop(
-                inner_cond, _nested(program.step, inner_pack, inner_unpack),
-                inner_pack(staged), max_steps=chunk, kind="checkpointed", checkpoints=chunk,
-                buffers=None if staging else lambda packed: packed[1],
-            )
+            staged, decided = _checkpointed_deciding(
+                inner_cond, program, inner_pack, inner_unpack, staged, chunk, chunk,
+                buffers=not staging, forced=forced)
         staged = inner_unpack(staged)
-        return pack(flush_log(staged, full_log) if staging else staged)
+        record = _set_row(record, chunk_steps, decided)
+        return pack(flush_log(staged, full_log) if staging else staged), record
 
-    final = eqxi.while_loop(
-        lambda packed: cond(unpack(packed)), outer_step, pack(init), max_steps=outer_bound,
-        kind="checkpointed", checkpoints=outer_bound, buffers=lambda packed: packed[1],
+    final, _ = eqxi.while_loop(
+        lambda carry: cond(unpack(carry[0])), outer_step, (pack(init), record),
+        max_steps=outer_bound, kind="checkpointed", checkpoints=outer_bound,
+        buffers=lambda carry: (carry[0][1], carry[1]),
     )
     return unpack(final)
+
+
+def unrecorded_decisions(init, shape):
+    """Step decisions `(h_next, keep)` for `shape` steps, none recorded yet."""
+    h, keep = NO_DECISIONS
+    return (jnp.full(shape, h, jnp.result_type(init.s)), jnp.full(shape, keep))
+
+
+def _row(decisions, i):
+    """Row(s) `i` of `(h_next, keep)` arrays (or Equinox buffers: indexed leaf by leaf, as
+    a tree map would enter the buffer objects)."""
+    return tuple(leaf[i] for leaf in decisions)
+
+
+def _set_row(decisions, i, row):
+    return tuple(leaf.at[i].set(r) for leaf, r in zip(decisions, row, strict=True))
+
+
+def _packed_deciding(program: "Program", pack, unpack):
+    """`program.deciding_step` on packed states."""
+
+    def step(packed, forced):
+        c, decided = program.deciding_step(unpack(packed), forced)
+        return pack(c), decided
+
+    return step
+
+
+def _checkpointed_deciding(cond, program: "Program", pack, unpack, c, bound: int,
+                           checkpoints: int, *, buffers: bool, forced=None):
+    """`while cond(packed): step` from `c`, at most `bound` steps, in Equinox's
+    checkpointed loop (each step nested, `_nested`), replaying recorded step decisions: those of `forced`
+    (one row per step, from an earlier pass), else the loop's own record (a write-once
+    buffer: Equinox's backward pass, which runs steps again from its checkpoints, reads
+    it filled). Returns the packed state and the decisions taken."""
+    step = _nested(program.deciding_step, pack, unpack, deciding=True)
+
+    def body(carry):
+        packed, j, decided = carry
+        packed, row = step(packed, _row(decided if forced is None else forced, j))
+        return packed, j + 1, _set_row(decided, j, row)
+
+    packed, _, decided = eqxi.while_loop(
+        lambda carry: cond(carry[0]), body,
+        (pack(c), jnp.asarray(0), unrecorded_decisions(c, (bound,))),
+        max_steps=bound, kind="checkpointed", checkpoints=checkpoints,
+        buffers=lambda carry: (carry[0][1], carry[2]) if buffers else carry[2],
+    )
+    return packed, decided
 
 
 def _every_step_stored(cond, program: "Program", init, bound: int):
@@ -425,7 +487,7 @@ def _staging_own_rows(program: "Program"):
     return step
 
 
-def _nested(step, pack, unpack):
+def _nested(step, pack, unpack, *, deciding: bool = False):
     """The checkpointed loops' body `pack(step(unpack(packed)))`, run as a nested
     computation: the branch of a `cond` whose predicate is true whenever the body runs
     (num_steps ≥ 0; XLA cannot fold it), unbatched so that `vmap` keeps it a `cond`.
@@ -439,6 +501,17 @@ def _nested(step, pack, unpack):
     (JAX linearizes and transposes a `cond` branch-wise) run sequentially; only the
     checkpoint reads, writes and cotangent sums stay outside.
     """
+
+    if deciding:  # (packed, forced decisions) -> (packed, decisions taken)
+        def run_deciding(operands):
+            c, decided = step(unpack(operands[0]), operands[1])
+            return pack(c), decided
+
+        def body_deciding(packed, forced):
+            always = eqxi.unvmap_all(unpack(packed).num_steps >= 0)
+            return lax.cond(always, run_deciding, lambda q: q, (packed, forced))
+
+        return body_deciding
 
     def run(packed):
         return pack(step(unpack(packed)))

@@ -8,4 +8,7 @@
 - `land.py`: the landing step: Newton correction of the event time, jumps, impact log.
 - `policies.py`: what happens at a Zeno accumulation or a sticking contact.
 - `program.py`: `init`, `step`, `running`, `finish` of one lane, as a `Program`.
+- `compact.py`: phases that only some lanes need, paid for by those lanes under `vmap`.
+- `stored.py`, `bounded.py`: loops for reverse mode (each step's linearisation stored;
+  `DirectAdjoint`'s nested scans), whose re-runs replay the first pass's step decisions.
 """

@@ -35,6 +35,9 @@ class Program(eqx.Module):
 
     init: Callable = eqx.field(static=True)  # (x0, args) -> state
     step: Callable = eqx.field(static=True)  # state -> state: one solver step (frozen when done)
+    # (state, forced decisions) -> (state, decisions): `step`, replaying recorded decisions
+    # where reverse mode recomputes steps (`_loop/step.py: replay_decisions`).
+    deciding_step: Callable = eqx.field(static=True)
     # `step` for a state where no lane slides: no sliding field, no search for the end of
     # sliding (`step` itself without `ZenoStick`). A landing may still start sliding.
     free_step: Callable = eqx.field(static=True)
@@ -62,6 +65,7 @@ def build_program(
     step_ = functools.partial(step, ctx)
     return Program(
         init=functools.partial(init, ctx), step=step_,
+        deciding_step=functools.partial(deciding_step, ctx),
         free_step=functools.partial(step, ctx, slides=False) if ctx.sticky else step_,
         running=functools.partial(running, ctx), finish=functools.partial(finish, ctx),
         log_rows_per_landing=ctx.log_rows_per_landing,
@@ -216,15 +220,21 @@ def init(ctx: LoopContext, x0, args) -> LoopState:
 
 
 def step(ctx: LoopContext, c_in: LoopState, slides: bool = True) -> LoopState:
+    return deciding_step(ctx, c_in, None, slides)[0]
+
+
+def deciding_step(ctx: LoopContext, c_in: LoopState, forced, slides: bool = True):
+    """`(step(c_in), decisions)`: the step with the decisions `forced` (`(h_next, keep)`,
+    NaN step size: none) replayed, and the decisions it took (see `replay_decisions`)."""
     # A lane out of steps is frozen like a finished one (see `simulate`'s `cond`), but
     # keeps done = False so that it reports MAX_STEPS.
     out_of_steps = ~c_in.done & (c_in.num_steps >= ctx.max_steps)
     c = eqx.tree_at(lambda z: z.done, c_in, c_in.done | out_of_steps)
-    taken = take_step(ctx, c, slides)
+    taken = take_step(ctx, c, slides, forced)
     found = detect(ctx, c, taken, slides)
     landed, _, s_save = land_if_due(ctx, c, taken)
     new = _next_state(ctx, c, taken, found, landed, s_save)
-    return eqx.tree_at(lambda z: z.done, new, new.done & ~out_of_steps)
+    return eqx.tree_at(lambda z: z.done, new, new.done & ~out_of_steps), (taken.h_next, taken.keep)
 
 
 def _next_state(ctx: LoopContext, c: LoopState, taken: Step, found: Detection,

@@ -43,12 +43,21 @@ def stored_while_loop(
     write: Callable[[Any, Any], Any] | None = None,
     ends_block: Callable[[Any], Any] | None = None,
     block: int = 8,
+    replay=None,
 ):
     """`while cond_fun(small): small = step(small)`, at most `max_steps` steps; with
     `buffers = write(small, buffers)` after every step for which `ends_block(small)` and
     after the last step (in the forward pass of reverse mode, also every `block` steps:
     after a step that `ends_block` does not mark, `write` must write nothing new).
     Returns `(small, buffers)`. Differentiable in reverse mode only (a `custom_vjp`).
+
+    With `replay` (a pytree of arrays with a leading axis of `max_steps` rows: one step's
+    decisions per row, rows not recorded marked by the step), `step` is
+    `(small, forced) -> (small, decided)`: it replays `forced`, its row of `replay`, where
+    recorded, and returns the decisions it took; the loop returns
+    `(small, buffers, decisions)`, `decisions` with the structure of `replay`. A caller
+    that runs the loop again (reverse mode's recomputation) passes the first run's
+    decisions, so that both runs take the same steps (`step.replay_decisions`).
 
     The impact loop's contract: `cond_fun` and `ends_block` are unbatched
     (`eqxi.unvmap_any`), as `step` freezes finished lanes itself and every lane's residuals
@@ -60,21 +69,29 @@ def stored_while_loop(
         write = lambda small, buffers: buffers  # noqa: E731
     if ends_block is None:
         ends_block = lambda small: jnp.asarray(False)  # noqa: E731
+    deciding = replay is not None
+    if not deciding:
+        replay, plain_step = (), step
+        step = lambda small, forced: (plain_step(small), ())  # noqa: E731
+    replay = jax.tree.map(jnp.asarray, replay)
+    forced = jax.tree.map(lambda r: r[0], replay)
     cond_closed, cond_consts = jax.closure_convert(cond_fun, small)
     ends_closed, ends_consts = jax.closure_convert(ends_block, small)
-    step_closed, step_consts = jax.closure_convert(step, small)
+    step_closed, step_consts = jax.closure_convert(step, small, forced)
     write_closed, write_consts = jax.closure_convert(write, small, buffers)
-    fns = _Fns(cond_closed, ends_closed, step_closed, write_closed, max_steps, block)
-    return _stored(fns, small, buffers, (tuple(cond_consts), tuple(ends_consts)),
-                   tuple(step_consts), tuple(write_consts))
+    fns = _Fns(cond_closed, ends_closed, step_closed, write_closed, max_steps, block, deciding)
+    small, buffers, decisions = _stored(
+        fns, small, buffers, jax.lax.stop_gradient(replay),
+        (tuple(cond_consts), tuple(ends_consts)), tuple(step_consts), tuple(write_consts))
+    return (small, buffers, decisions) if deciding else (small, buffers)
 
 
 def residual_bytes(step: Callable[[Any], Any], small) -> int:
     """The bytes of residuals that `stored_while_loop` would store per step (traced with
     `jax.eval_shape`; nothing runs)."""
-    closed, consts = jax.closure_convert(step, small)
-    fns = _Fns(None, None, closed, None, 1, 1)
-    out = jax.eval_shape(lambda s: _step_linearised(fns, s, tuple(consts))[1][0], small)
+    closed, consts = jax.closure_convert(lambda s, _: (step(s), ()), small, ())
+    fns = _Fns(None, None, closed, None, 1, 1, False)
+    out = jax.eval_shape(lambda s: _step_linearised(fns, s, (), tuple(consts))[1][0], small)
     return _nbytes(out)
 
 
@@ -82,9 +99,9 @@ class _Fns:
     """The loop's closed functions and sizes, and the residuals' layouts found while
     tracing the forward pass (read by the backward pass)."""
 
-    def __init__(self, cond, ends, step, write, max_steps, block):
+    def __init__(self, cond, ends, step, write, max_steps, block, deciding):
         self.cond, self.ends, self.step, self.write = cond, ends, step, write
-        self.max_steps, self.block = max_steps, block
+        self.max_steps, self.block, self.deciding = max_steps, block, deciding
         self.step_layout = self.write_layout = None
 
 
@@ -174,29 +191,75 @@ def _add(a, b):
 
 
 @functools.partial(jax.custom_vjp, nondiff_argnums=(0,))
-def _stored(fns, small, buffers, tests, step_consts, write_consts):
-    """The loop without derivatives: steps until `ends_block`, then `write`."""
+def _stored(fns, small, buffers, replay, tests, step_consts, write_consts):
+    """The loop without derivatives: steps until `ends_block`, then `write`; with
+    decisions, also at most as many steps at a time as the inner loop's carry can stage
+    decisions of within XLA:CPU's sequential threshold (64 for float64 step sizes),
+    written to the record between blocks: the outer iteration that writes them touches
+    the whole record and runs on the dataflow executor, so it should run rarely."""
+    block = _decision_block(replay) if fns.deciding else None
+    replay = _spare_rows(replay, block)
 
     def inner_more(state):
-        first, k, small = state
-        free = first | ~_bool(fns.ends(small, *tests[1]))
-        return free & (k < fns.max_steps) & fns.cond(small, *tests[0])
+        j, k, small, _ = state
+        free = (j == 0) | ~_bool(fns.ends(small, *tests[1]))
+        more = free & (k < fns.max_steps) & fns.cond(small, *tests[0])
+        return more & (j < block) if block else more
 
     def inner_step(state):
-        _, k, small = state
-        return jnp.asarray(False), k + 1, fns.step(small, *step_consts)
+        j, k, small, (forced, staged) = state
+        small, decided = fns.step(small, _row(forced, j), *step_consts)
+        return j + 1, k + 1, small, (forced, _set_row(staged, j, decided))
 
     def more(state):
-        k, small, _ = state
+        k, small, *_ = state
         return (k < fns.max_steps) & fns.cond(small, *tests[0])
 
     def outer_step(state):
-        k, small, buffers = state
-        _, k, small = lax.while_loop(inner_more, inner_step, (jnp.asarray(True), k, small))
-        return k, small, fns.write(small, buffers, *write_consts)
+        k, small, buffers, record = state
+        # (without decisions these are empty tuples: one inner loop until `ends_block`)
+        rows = (_rows(replay, k, block), _rows(record, k, block))
+        _, k_next, small, (_, staged) = lax.while_loop(
+            inner_more, inner_step, (jnp.asarray(0), k, small, rows))
+        record = _set_rows(record, k, staged)
+        return k_next, small, fns.write(small, buffers, *write_consts), record
 
-    _, small, buffers = lax.while_loop(more, outer_step, (jnp.asarray(0), small, buffers))
-    return small, buffers
+    init = (jnp.asarray(0), small, buffers, replay)
+    _, small, buffers, record = lax.while_loop(more, outer_step, init)
+    return small, buffers, _drop_spare(record, fns.max_steps)
+
+
+def _decision_block(replay) -> int:
+    itemsize = max(jnp.result_type(x).itemsize for x in jax.tree.leaves(replay))
+    return SEQUENTIAL_BUFFER_BYTES // itemsize
+
+
+def _row(tree, j):
+    return jax.tree.map(lambda x: lax.dynamic_index_in_dim(x, j, 0, keepdims=False), tree)
+
+
+def _set_row(tree, j, row):
+    return jax.tree.map(lambda x, r: lax.dynamic_update_index_in_dim(x, r, j, 0), tree, row)
+
+
+def _rows(tree, k, block):
+    return jax.tree.map(lambda x: lax.dynamic_slice_in_dim(x, k, block, 0), tree)
+
+
+def _set_rows(tree, k, rows):
+    return jax.tree.map(lambda x, r: lax.dynamic_update_slice_in_dim(x, r, k, 0), tree, rows)
+
+
+def _spare_rows(replay, block):
+    """`replay` with `block` more rows (copies of its last, never stepped on): a block's
+    rows are read and written whole from its first step's index, and a slice that ran
+    past the end would be moved back (JAX clamps the start)."""
+    return jax.tree.map(lambda x: jnp.concatenate([x, jnp.repeat(x[-1:], block or 0, 0)]),
+                        replay)
+
+
+def _drop_spare(record, rows):
+    return jax.tree.map(lambda x: x[:rows], record)
 
 
 def _nbytes(tree) -> int:
@@ -209,9 +272,12 @@ def _bool(x):
     return jnp.asarray(x, dtype=bool)
 
 
-def _step_linearised(fns, small, step_consts):
-    out, pullback = jax.vjp(fns.step, small, *step_consts)
-    return out, jax.tree.flatten(pullback)
+def _step_linearised(fns, small, forced, step_consts):
+    """`(step's outputs, (its pullback's leaves, treedef))`, the replayed decisions held
+    fixed (they carry no derivative)."""
+    out, pullback, decided = jax.vjp(
+        lambda s, *consts: fns.step(s, forced, *consts), small, *step_consts, has_aux=True)
+    return (out, decided), jax.tree.flatten(pullback)
 
 
 def _write_linearised(fns, small, buffers, write_consts):
@@ -219,11 +285,12 @@ def _write_linearised(fns, small, buffers, write_consts):
     return out, jax.tree.flatten(pullback)
 
 
-def _find_layouts(fns, small, buffers, step_consts, write_consts):
+def _find_layouts(fns, small, buffers, replay, step_consts, write_consts):
     """Trace one step and one write (`eval_shape` runs nothing) for the residuals' layout."""
 
     def trace(small, buffers):
-        small, (leaves, treedef) = _step_linearised(fns, small, step_consts)
+        (small, _), (leaves, treedef) = _step_linearised(fns, small, _row(replay, 0),
+                                                         step_consts)
         # Pieces only where the step's own buffers are small: otherwise its loop runs on
         # the dataflow executor anyway, and one row per dtype costs the fewest kernels.
         small_buffers = all(_nbytes(x) <= SEQUENTIAL_BUFFER_BYTES
@@ -236,37 +303,42 @@ def _find_layouts(fns, small, buffers, step_consts, write_consts):
     jax.eval_shape(trace, small, buffers)
 
 
-def _fwd(fns, small, buffers, tests, step_consts, write_consts):
-    _find_layouts(fns, small, buffers, step_consts, write_consts)
+def _fwd(fns, small, buffers, replay, tests, step_consts, write_consts):
+    _find_layouts(fns, small, buffers, replay, step_consts, write_consts)
     step_layout, write_layout, block = fns.step_layout, fns.write_layout, fns.block
+    padded = _spare_rows(replay, block)
 
     def inner_more(state):
-        j, k, small, _ = state
+        j, k, small, *_ = state
         first_or_free = (j == 0) | ~_bool(fns.ends(small, *tests[1]))
         return (j < block) & (k < fns.max_steps) & first_or_free & fns.cond(small, *tests[0])
 
     def inner_step(state):
-        j, k, small, staging = state
-        small, (leaves, _) = _step_linearised(fns, small, step_consts)
+        j, k, small, staging, (forced, staged) = state
+        (small, decided), (leaves, _) = _step_linearised(fns, small, _row(forced, j),
+                                                         step_consts)
         staging = tuple(lax.dynamic_update_index_in_dim(s, r, j, 0)
                         for s, r in zip(staging, step_layout.pack(leaves), strict=True))
-        return j + 1, k + 1, small, staging
+        return j + 1, k + 1, small, staging, (forced, _set_row(staged, j, decided))
 
     def more(state):
         _, k, small, *_ = state
         return (k < fns.max_steps) & fns.cond(small, *tests[0])
 
     def outer_step(state):
-        b, k, small, buffers, step_stores, write_stores, starts = state
-        j, k_next, small, staging = lax.while_loop(
-            inner_more, inner_step, (jnp.asarray(0), k, small, step_layout.stores(block)))
+        b, k, small, buffers, step_stores, write_stores, starts, record = state
+        rows = (_rows(padded, k, block), _rows(record, k, block))
+        j, k_next, small, staging, (_, staged) = lax.while_loop(
+            inner_more, inner_step,
+            (jnp.asarray(0), k, small, step_layout.stores(block), rows))
+        record = _set_rows(record, k, staged)
         buffers, (leaves, _) = _write_linearised(fns, small, buffers, write_consts)
         step_stores = tuple(lax.dynamic_update_slice_in_dim(s, r, k, 0)
                             for s, r in zip(step_stores, staging, strict=True))
         write_stores = tuple(lax.dynamic_update_index_in_dim(s, r, b, 0)
                              for s, r in zip(write_stores, write_layout.pack(leaves), strict=True))
         starts = lax.dynamic_update_index_in_dim(starts, k, b, 0)
-        return b + 1, k_next, small, buffers, step_stores, write_stores, starts
+        return b + 1, k_next, small, buffers, step_stores, write_stores, starts, record
 
     # Every block has at least one step: at most `max_steps` blocks. `block` spare rows in
     # the step stores: a block's rows are written whole from its first step's index.
@@ -274,20 +346,20 @@ def _fwd(fns, small, buffers, tests, step_consts, write_consts):
     init = (jnp.asarray(0), jnp.asarray(0), small, buffers,
             step_layout.stores(fns.max_steps + block),
             write_layout.stores(n_blocks),
-            jnp.zeros((n_blocks + 1,), jnp.asarray(0).dtype))
-    b, k, small_end, buffers_end, step_stores, write_stores, starts = lax.while_loop(
+            jnp.zeros((n_blocks + 1,), jnp.asarray(0).dtype), padded)
+    b, k, small_end, buffers_end, step_stores, write_stores, starts, record = lax.while_loop(
         more, outer_step, init)
     starts = lax.dynamic_update_index_in_dim(starts, k, b, 0)
-    residuals = (b, starts, step_stores, write_stores, small, buffers, tests, step_consts,
-                 write_consts)
-    return (small_end, buffers_end), residuals
+    residuals = (b, starts, step_stores, write_stores, small, buffers, replay, tests,
+                 step_consts, write_consts)
+    return (small_end, buffers_end, _drop_spare(record, fns.max_steps)), residuals
 
 
 def _bwd(fns, residuals, ct):
-    b_end, starts, step_stores, write_stores, small, buffers, tests, step_consts, \
+    b_end, starts, step_stores, write_stores, small, buffers, replay, tests, step_consts, \
         write_consts = residuals
     step_layout, write_layout, block = fns.step_layout, fns.write_layout, fns.block
-    ct_small, ct_buffers = ct
+    ct_small, ct_buffers, _ = ct  # (the decisions carry no derivative)
     # The buffers are written once per row and never read by the loop: the cotangent of a
     # row goes to the step that wrote it, and the buffers' cotangent is the same for every
     # step. Kept out of the carry (and the zeroing of written rows in the write's pullback
@@ -322,7 +394,7 @@ def _bwd(fns, residuals, ct):
     _, ct_small, acc_step, acc_write = lax.while_loop(lambda s: s[0] > 0, outer_back, init)
     zeros = lambda tree: _with_float0(_zeros_float_part(tree), tree)  # noqa: E731
     # The initial buffers are constants of the loop's caller (NaN-filled log rows).
-    return (_with_float0(ct_small, small), zeros(buffers), zeros(tests),
+    return (_with_float0(ct_small, small), zeros(buffers), zeros(replay), zeros(tests),
             _with_float0(acc_step, step_consts), _with_float0(acc_write, write_consts))
 
 
