@@ -43,6 +43,7 @@ from ._compiler import SEQUENTIAL_BUFFER_BYTES, single_run_jit
 from ._loop.bounded import bounded_while_loop
 from ._loop.policies import AbstractZenoPolicy, sliding_phases
 from ._loop.program import Program, build_program
+from ._loop.replay import row, set_row, unrecorded_decisions
 from ._loop.state import (
     flush_log,
     has_staged_rows,
@@ -51,7 +52,6 @@ from ._loop.state import (
     stage_log,
     with_full_log,
 )
-from ._loop.step import NO_DECISIONS
 from ._loop.stored import residual_bytes, stored_while_loop
 from ._scene import Scene
 from ._solution import ACCEPTED, FIELD_FIX, SimulationError, Solution, failure_message
@@ -308,7 +308,7 @@ def _two_level_checkpointed(cond, program: "Program", init, bound: int):
 
     The backward pass runs each chunk again from its checkpoint: the first pass records
     every step's decisions (a row per step, a write-once buffer) and the re-run replays
-    them (`_loop/step.py: replay_decisions`), so that XLA's different
+    them (`_loop/replay.py`), so that XLA's different
     rounding of the re-run cannot make it take other steps (gradients were off by up to
     3.3e-8 relative at rtol = 1e-12). Cost, alternately with the code before (two rounds):
     4.2-4.5/4.5/4.5-4.6x the primal at 10/100/1000 impacts against 3.8-4.3/4.3/4.5x.
@@ -338,18 +338,18 @@ def _two_level_checkpointed(cond, program: "Program", init, bound: int):
 
     store_linearisations = _stores_pay(program, init)
     # The step decisions, recorded by the first pass and replayed where the backward pass
-    # runs a chunk again (`_loop/step.py: replay_decisions`): row n for a lane's step n
+    # runs a chunk again (`_loop/replay.py`): row n for a lane's step n
     # (a chunk writes `chunk` rows from its first step; rows past its last step are
     # written again by the next chunk), an Equinox buffer (its backward pass reads it
     # filled). (A row per outer iteration would grow with the log: staged landings end
     # outer iterations.)
-    record = unrecorded_decisions(init, (bound + chunk,))
+    record = unrecorded_decisions(init.s, (bound + chunk,))
 
     def outer_step(carry):
         packed, record = carry
         c = unpack(packed)
         chunk_steps = c.num_steps + jnp.arange(chunk)
-        forced = jax.lax.stop_gradient(_row(record, chunk_steps))
+        forced = jax.lax.stop_gradient(row(record, chunk_steps))
         staged, full_log = stage_log(c, rows) if staging else (c, None)
         if store_linearisations:
             staged, _, decided = stored_while_loop(
@@ -361,7 +361,7 @@ def _two_level_checkpointed(cond, program: "Program", init, bound: int):
                 inner_cond, program, inner_pack, inner_unpack, staged, chunk, chunk,
                 buffers=not staging, forced=forced)
         staged = inner_unpack(staged)
-        record = _set_row(record, chunk_steps, decided)
+        record = set_row(record, chunk_steps, decided)
         return pack(flush_log(staged, full_log) if staging else staged), record
 
     final, _ = eqxi.while_loop(
@@ -370,22 +370,6 @@ def _two_level_checkpointed(cond, program: "Program", init, bound: int):
         buffers=lambda carry: (carry[0][1], carry[1]),
     )
     return unpack(final)
-
-
-def unrecorded_decisions(init, shape):
-    """Step decisions `(h_next, keep)` for `shape` steps, none recorded yet."""
-    h, keep = NO_DECISIONS
-    return (jnp.full(shape, h, jnp.result_type(init.s)), jnp.full(shape, keep))
-
-
-def _row(decisions, i):
-    """Row(s) `i` of `(h_next, keep)` arrays (or Equinox buffers: indexed leaf by leaf, as
-    a tree map would enter the buffer objects)."""
-    return tuple(leaf[i] for leaf in decisions)
-
-
-def _set_row(decisions, i, row):
-    return tuple(leaf.at[i].set(r) for leaf, r in zip(decisions, row, strict=True))
 
 
 def _packed_deciding(program: "Program", pack, unpack):
@@ -401,20 +385,21 @@ def _packed_deciding(program: "Program", pack, unpack):
 def _checkpointed_deciding(cond, program: "Program", pack, unpack, c, bound: int,
                            checkpoints: int, *, buffers: bool, forced=None):
     """`while cond(packed): step` from `c`, at most `bound` steps, in Equinox's
-    checkpointed loop (each step nested, `_nested`), replaying recorded step decisions: those of `forced`
-    (one row per step, from an earlier pass), else the loop's own record (a write-once
-    buffer: Equinox's backward pass, which runs steps again from its checkpoints, reads
-    it filled). Returns the packed state and the decisions taken."""
+    checkpointed loop (each step nested, `_nested`), replaying recorded step decisions
+    (`_loop/replay.py`): those of `forced` (one row per step, from an earlier pass), else
+    the loop's own record (a write-once buffer: Equinox's backward pass, which runs steps
+    again from its checkpoints, reads it filled). Returns the packed state and the
+    decisions taken."""
     step = _nested(program.deciding_step, pack, unpack, deciding=True)
 
     def body(carry):
         packed, j, decided = carry
-        packed, row = step(packed, _row(decided if forced is None else forced, j))
-        return packed, j + 1, _set_row(decided, j, row)
+        packed, taken = step(packed, row(decided if forced is None else forced, j))
+        return packed, j + 1, set_row(decided, j, taken)
 
     packed, _, decided = eqxi.while_loop(
         lambda carry: cond(carry[0]), body,
-        (pack(c), jnp.asarray(0), unrecorded_decisions(c, (bound,))),
+        (pack(c), jnp.asarray(0), unrecorded_decisions(c.s, (bound,))),
         max_steps=bound, kind="checkpointed", checkpoints=checkpoints,
         buffers=lambda carry: (carry[0][1], carry[2]) if buffers else carry[2],
     )

@@ -10,5 +10,6 @@
 - `program.py`: `init`, `step`, `running`, `finish` of one lane, as a `Program`.
 - `compact.py`: phases that only some lanes need, paid for by those lanes under `vmap`.
 - `stored.py`, `bounded.py`: loops for reverse mode (each step's linearisation stored;
-  `DirectAdjoint`'s nested scans), whose re-runs replay the first pass's step decisions.
+  `DirectAdjoint`'s nested scans).
+- `replay.py`: the step decisions that reverse mode's re-runs of steps replay.
 """

@@ -18,7 +18,7 @@ trajectory stitched from mismatched blocks. With all fusion disabled
 with forward mode to 7e-15; with Equinox's loop it differed by up to 7.4e-9 relative
 (x'' = −x backward over [−40, 0], Tsit5, rtol = atol = 1e-12;
 `tests/test_reverse.py::test_recomputed_steps_replay_the_first_pass`). Here the step's
-decisions (step accepted, next step size) are named with `decision`, and the checkpoint
+decisions (step accepted, next step size) are named (`replay.decision`), and the checkpoint
 policy saves exactly those (a few bytes per step): the recomputation takes the first
 pass's steps, and the gradient agrees with forward mode to round-off. (The checkpointed
 loops of `RecursiveCheckpointAdjoint`, which are not `jax.checkpoint`, replay a record
@@ -31,15 +31,10 @@ import equinox.internal as eqxi
 import jax
 import jax.numpy as jnp
 from jax import lax
-from jax.ad_checkpoint import checkpoint_name
 
-DECISION = "grazejax_step_decision"
+from .replay import DECISION
+
 _REPLAY_DECISIONS = jax.checkpoint_policies.save_only_these_names(DECISION)
-
-
-def decision(value):
-    """`value`, marked as a step decision that reverse mode's recomputation must replay."""
-    return checkpoint_name(value, DECISION)
 
 
 def bounded_while_loop(cond, step, init, max_steps: int, base: int = 16):

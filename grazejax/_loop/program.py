@@ -36,7 +36,7 @@ class Program(eqx.Module):
     init: Callable = eqx.field(static=True)  # (x0, args) -> state
     step: Callable = eqx.field(static=True)  # state -> state: one solver step (frozen when done)
     # (state, forced decisions) -> (state, decisions): `step`, replaying recorded decisions
-    # where reverse mode recomputes steps (`_loop/step.py: replay_decisions`).
+    # where reverse mode recomputes steps (`replay.py`).
     deciding_step: Callable = eqx.field(static=True)
     # `step` for a state where no lane slides: no sliding field, no search for the end of
     # sliding (`step` itself without `ZenoStick`). A landing may still start sliding.
@@ -225,7 +225,7 @@ def step(ctx: LoopContext, c_in: LoopState, slides: bool = True) -> LoopState:
 
 def deciding_step(ctx: LoopContext, c_in: LoopState, forced, slides: bool = True):
     """`(step(c_in), decisions)`: the step with the decisions `forced` (`(h_next, keep)`,
-    NaN step size: none) replayed, and the decisions it took (see `replay_decisions`)."""
+    NaN step size: none) replayed, and the decisions it took (see `replay.py`)."""
     # A lane out of steps is frozen like a finished one (see `simulate`'s `cond`), but
     # keeps done = False so that it reports MAX_STEPS.
     out_of_steps = ~c_in.done & (c_in.num_steps >= ctx.max_steps)

@@ -11,8 +11,8 @@ from jaxtyping import PyTree
 
 from .._custom_types import BoolScalar, RealScalar, State
 from .._stepping import error_or_zero
-from .bounded import decision
 from .context import LoopContext
+from .replay import decision, replay_decisions
 from .state import LoopState
 
 
@@ -36,7 +36,7 @@ def take_step(ctx: LoopContext, c: LoopState, slides: bool = True, forced=None) 
     """One solver step from c.s: to the located contact on a landing, else by c.h (never
     past t1). `slides=False`: no lane slides (the free field, no per-step test).
     `forced`: the decisions `(h_next, keep)` of this step in an earlier pass, to replay
-    (`replay_decisions`), or None."""
+    (`replay.replay_decisions`), or None."""
     solver, controller = ctx.solver, ctx.controller
     targs = (c.args, c.t_hi, c.t_lo, c.stick)
     s_end = ctx.s_end_of(c.t_hi, c.t_lo)
@@ -74,24 +74,6 @@ def take_step(ctx: LoopContext, c: LoopState, slides: bool = True, forced=None) 
     return Step(
         sa, sb, s_end, y1, interp, stages, keep, finite1, h_next, solver_state1, controller_state1
     )
-
-
-def replay_decisions(decided, forced):
-    """`forced` where it was recorded (its step size is not NaN), else `decided`.
-
-    Reverse mode recomputes steps in another compiled program, whose fusions round the
-    stages differently in the last bits; the controller's error estimate (a difference of
-    nearly equal stage sums) amplifies that into different step sizes, and the gradient
-    would be that of a trajectory stitched from mismatched pieces (see `bounded.py`).
-    Replaying the first pass's decisions keeps the recomputed steps on its trajectory.
-    """
-    if forced is None:
-        return decided
-    recorded = ~jnp.isnan(forced[0])
-    return tuple(jnp.where(recorded, f, d) for f, d in zip(forced, decided, strict=True))
-
-
-NO_DECISIONS = (jnp.nan, False)  # (h_next, keep) of a step not yet taken
 
 
 def equilibrium_probe(ctx: LoopContext, sa, sb, y0, y1, y_error, targs):

@@ -57,7 +57,7 @@ def stored_while_loop(
     recorded, and returns the decisions it took; the loop returns
     `(small, buffers, decisions)`, `decisions` with the structure of `replay`. A caller
     that runs the loop again (reverse mode's recomputation) passes the first run's
-    decisions, so that both runs take the same steps (`step.replay_decisions`).
+    decisions, so that both runs take the same steps (`replay.py`).
 
     The impact loop's contract: `cond_fun` and `ends_block` are unbatched
     (`eqxi.unvmap_any`), as `step` freezes finished lanes itself and every lane's residuals
