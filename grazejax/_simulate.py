@@ -476,6 +476,8 @@ def _nested(step, pack, unpack, *, deciding: bool = False):
     """The checkpointed loops' body `pack(step(unpack(packed)))`, run as a nested
     computation: the branch of a `cond` whose predicate is true whenever the body runs
     (num_steps ≥ 0; XLA cannot fold it), unbatched so that `vmap` keeps it a `cond`.
+    With `deciding`, `step` is `program.deciding_step` and the body
+    `(packed, forced decisions) -> (packed, decisions taken)`.
 
     Why: XLA:CPU runs a sequence of kernels one after another only if none touches a
     buffer over 512 bytes (see `stage_log`), and decides it per sequence: a loop body and
@@ -486,24 +488,19 @@ def _nested(step, pack, unpack, *, deciding: bool = False):
     (JAX linearizes and transposes a `cond` branch-wise) run sequentially; only the
     checkpoint reads, writes and cotangent sums stay outside.
     """
+    if not deciding:  # `step` without decisions: none forced, none returned
+        with_decisions = _nested(lambda c, forced: (step(c), forced), pack, unpack,
+                                 deciding=True)
+        return lambda packed: with_decisions(packed, ())[0]
 
-    if deciding:  # (packed, forced decisions) -> (packed, decisions taken)
-        def run_deciding(operands):
-            c, decided = step(unpack(operands[0]), operands[1])
-            return pack(c), decided
+    # (packed, forced decisions) -> (packed, decisions taken)
+    def run(operands):
+        c, decided = step(unpack(operands[0]), operands[1])
+        return pack(c), decided
 
-        def body_deciding(packed, forced):
-            always = eqxi.unvmap_all(unpack(packed).num_steps >= 0)
-            return lax.cond(always, run_deciding, lambda q: q, (packed, forced))
-
-        return body_deciding
-
-    def run(packed):
-        return pack(step(unpack(packed)))
-
-    def body(packed):
+    def body(packed, forced):
         always = eqxi.unvmap_all(unpack(packed).num_steps >= 0)
-        return lax.cond(always, run, lambda q: q, packed)
+        return lax.cond(always, run, lambda q: q, (packed, forced))
 
     return body
 

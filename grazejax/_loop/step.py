@@ -65,7 +65,7 @@ def take_step(ctx: LoopContext, c: LoopState, slides: bool = True, forced=None) 
         sa, sb, c.y, y1, targs, y_error, ctx.error_order, c.controller_state
     )
     finite1 = jnp.all(jnp.isfinite(y1))
-    # The step's decisions, replayed when reverse mode recomputes the step (`bounded.py`).
+    # The step's decisions, replayed when reverse mode runs the step again (`replay.py`).
     keep = keep & finite1
     h_next = jax.lax.stop_gradient(tnext - jnp.where(keep, sb, sa))
     h_next, keep = decision(replay_decisions((h_next, keep), forced))
