@@ -21,6 +21,8 @@ below means "no violation was found at the samples, nor between neighbouring sam
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -463,9 +465,59 @@ def _result(condition, i, name, holds, detail, points=(), width=1):
     return ConditionResult(condition, i, name, holds, STATEMENTS[condition], detail, points[:5])
 
 
+class _Piece(NamedTuple):
+    """The samples of one surface piece that the sampled conditions read."""
+
+    scene: Scene
+    i: int
+    args: object
+    box: np.ndarray
+    scale: float
+    rtol: float
+    ts: np.ndarray  # sample times
+    projected: np.ndarray  # samples projected onto Φ_i = 0
+    tx: np.ndarray  # (t, x) rows
+    ev: dict  # Φ, ∇Φ, f, DJ, ... at the projected samples (`_evaluate`)
+    box_grad: np.ndarray  # ‖∇Φ‖ at the unprojected box samples
+    grad_norm: np.ndarray
+    converged: np.ndarray  # projected onto Φ = 0, inside the box
+    on_piece: np.ndarray  # converged and `where` true
+    interior: np.ndarray  # on the piece, `where` constant within δ
+    pairs: np.ndarray  # neighbouring sample indices
+
+    @property
+    def name(self) -> str:
+        return self.scene.surface_name(self.i)
+
+    @property
+    def surface(self) -> Surface:
+        return self.scene.surfaces[self.i]
+
+    @property
+    def width(self) -> int:
+        return self.tx.shape[1]
+
+    def result(self, condition, holds, detail, points=()):
+        return _result(condition, self.i, self.name, holds, detail, points, self.width)
+
+
 def _check_surface(scene, i, ts, xs, args, box, delta, scale, rtol):
-    name = scene.surface_name(i)
-    surface = scene.surfaces[i]
+    piece = _sample_piece(scene, i, ts, xs, args, box, delta, scale, rtol)
+    if not piece.on_piece.any():
+        detail = "no point of this piece was found in the box: nothing tested"
+        return [piece.result(c, None, detail)
+                for c in ("C1", "C2", "C3", "C4", "C5", "C6", "C7", "A1")]
+    c2, finite, singular, det = _c2(piece)
+    c4, flat_rate = _c4(piece)
+    return [_c1(piece), c2, c4, _c5(piece, finite, singular, det),
+            *_c3_a1(scene, i, piece.name, piece.tx, piece.ev, piece.interior, piece.pairs,
+                    flat_rate, args, scale),
+            *_c6_c7(piece)]
+
+
+def _sample_piece(scene, i, ts, xs, args, box, delta, scale, rtol) -> _Piece:
+    """Project the box samples onto Φ_i = 0, evaluate everything the conditions read
+    there, and sort the samples: converged, on the piece, interior; neighbouring pairs."""
     projected, box_grad = (
         np.asarray(v) for v in _sample_surface(scene, i, jnp.asarray(ts), jnp.asarray(xs), args)
     )
@@ -482,56 +534,54 @@ def _check_surface(scene, i, ts, xs, args, box, delta, scale, rtol):
         & (np.abs(ev["phi"]) <= 1e-10 * (1 + grad_norm * np.max(np.abs(projected), axis=1)))
     )
     on_piece = converged & ev["inside"]
-    interior = on_piece & ~ev["near_boundary"]
     tx = np.concatenate([ts[:, None], projected], axis=1)
-    m = int(on_piece.sum())
-    if m == 0:
-        detail = "no point of this piece was found in the box: nothing tested"
-        return [
-            _result(c, i, name, None, detail, width=tx.shape[1])
-            for c in ("C1", "C2", "C3", "C4", "C5", "C6", "C7", "A1")
-        ]
-    pairs = _neighbour_pairs(
-        tx[converged] / np.concatenate([[max(1.0, abs(ts).max())], box[:, 1] - box[:, 0]]), 6
-    )
-    # Pair indices refer to the converged subset: map back to sample indices.
-    index = np.flatnonzero(converged)
-    pairs = index[pairs] if len(pairs) else pairs
-    out = []
+    pairs = np.zeros((0, 2), int)
+    if on_piece.any():
+        pairs = _neighbour_pairs(
+            tx[converged] / np.concatenate([[max(1.0, abs(ts).max())], box[:, 1] - box[:, 0]]), 6
+        )
+        # Pair indices refer to the converged subset: map back to sample indices.
+        pairs = np.flatnonzero(converged)[pairs] if len(pairs) else pairs
+    return _Piece(scene, i, args, box, scale, rtol, ts, projected, tx, ev, box_grad,
+                  grad_norm, converged, on_piece, on_piece & ~ev["near_boundary"], pairs)
 
-    # ---- (C1) ----
+
+def _c1(p: _Piece) -> ConditionResult:
+    """(C1): small ‖∇Φ‖ at the samples, and Newton on ∇Φ = 0 from the flattest ones."""
+    on_piece, grad_norm, box, args = p.on_piece, p.grad_norm, p.box, p.args
+    m = int(on_piece.sum())
     # The scale of ∇Φ is taken over the whole box, not over Γ: if ∇Φ vanishes on all of
     # Γ (Φ = x³), its median on Γ is tiny too.
-    median = float(np.median(box_grad[np.isfinite(box_grad)]))
-    small = on_piece & (grad_norm <= rtol * median)
-    c1_points = list(tx[small])
+    median = float(np.median(p.box_grad[np.isfinite(p.box_grad)]))
+    small = on_piece & (grad_norm <= p.rtol * median)
+    c1_points = list(p.tx[small])
     starts = np.argsort(np.where(on_piece, grad_norm, np.inf))[: min(8, m)]
     xc, phic, gradc = (
         np.asarray(v)
         for v in _critical_points(
-            scene, i, jnp.asarray(ts[starts]), jnp.asarray(projected[starts]), args
+            p.scene, p.i, jnp.asarray(p.ts[starts]), jnp.asarray(p.projected[starts]), args
         )
     )
-    for t_, x_, p_, g_ in zip(ts[starts], xc, phic, gradc, strict=True):
-        on = abs(p_) <= 1e-9 * (1 + scale) and np.linalg.norm(g_) <= 1e-9 * max(median, 1e-300)
-        in_piece = surface.where is None or bool(surface.where(t_, jnp.asarray(x_), args))
+    for t_, x_, p_, g_ in zip(p.ts[starts], xc, phic, gradc, strict=True):
+        on = abs(p_) <= 1e-9 * (1 + p.scale) and np.linalg.norm(g_) <= 1e-9 * max(median, 1e-300)
+        in_piece = p.surface.where is None or bool(p.surface.where(t_, jnp.asarray(x_), args))
         if on and in_piece and np.all((x_ >= box[:, 0]) & (x_ <= box[:, 1])):
             c1_points.append(np.concatenate([[t_], x_]))
-    c1_points = _dedupe(np.array(c1_points).reshape(-1, tx.shape[1]), scale) if c1_points else []
-    out.append(
-        _result(
-            "C1",
-            i,
-            name,
-            len(c1_points) == 0,
-            f"‖∇Φ‖ at {m} points of the piece: min {grad_norm[on_piece].min():.3g} (median over the box {median:.3g}); "
-            f"critical points of Φ on the piece: {len(c1_points)}",
-            c1_points,
-        )
+    c1_points = _dedupe(np.array(c1_points).reshape(-1, p.width), p.scale) if c1_points else []
+    return p.result(
+        "C1",
+        len(c1_points) == 0,
+        f"‖∇Φ‖ at {m} points of the piece: min {grad_norm[on_piece].min():.3g} (median over the box {median:.3g}); "
+        f"critical points of Φ on the piece: {len(c1_points)}",
+        c1_points,
     )
 
-    # ---- (C2) ----
-    DJ = ev["DJ"]
+
+def _c2(p: _Piece):
+    """(C2): DJ finite and C¹ between neighbours, det DJ ≠ 0 and without sign changes.
+    Returns the result and, per sample, whether DJ is finite, whether it is singular, and
+    det DJ (for (C5))."""
+    DJ, interior, pairs, tx = p.ev["DJ"], p.interior, p.pairs, p.tx
     k_int = int(interior.sum())
     finite = np.all(np.isfinite(DJ), axis=(1, 2))
     # C¹: for a C³ law, DJ(b) − DJ(a) = ½(D²J(a) + D²J(b))(b − a) + O(|b − a|³) between
@@ -539,22 +589,23 @@ def _check_surface(scene, i, ts, xs, args, box, delta, scale, rtol):
     kink = interior & ~finite
     if len(pairs):
         a, b = pairs[:, 0], pairs[:, 1]
-        use = interior[a] & interior[b] & finite[a] & finite[b] & (ts[a] == ts[b])
+        use = interior[a] & interior[b] & finite[a] & finite[b] & (p.ts[a] == p.ts[b])
         a, b = a[use], b[use]
-        step = projected[b] - projected[a]
-        trapezoid = 0.5 * np.einsum("kijl,kl->kij", ev["D2J"][a] + ev["D2J"][b], step)
+        step = p.projected[b] - p.projected[a]
+        trapezoid = 0.5 * np.einsum("kijl,kl->kij", p.ev["D2J"][a] + p.ev["D2J"][b], step)
         miss = np.linalg.norm(DJ[b] - DJ[a] - trapezoid, axis=(1, 2))
         bad = miss > 1e-3 * (1 + np.linalg.norm(DJ[a], axis=(1, 2)))
         kink_points = 0.5 * (tx[a[bad]] + tx[b[bad]])
     else:
-        kink_points = np.zeros((0, tx.shape[1]))
-    kink_points = _dedupe(np.concatenate([tx[kink], kink_points]), 1e3 * scale)
+        kink_points = np.zeros((0, p.width))
+    kink_points = _dedupe(np.concatenate([tx[kink], kink_points]), 1e3 * p.scale)
     dets = np.where(finite[:, None, None], DJ, 0.0)
     det = np.linalg.det(dets)
     norm2 = np.linalg.norm(dets, ord=2, axis=(1, 2))
-    n = projected.shape[1]
-    singular = interior & finite & (np.abs(det) <= rtol * np.maximum(norm2, 1e-300) ** n)
-    zeros = _sign_change_zeros(scene, i, "det", tx, det, interior & finite, pairs, args, scale)
+    n = p.projected.shape[1]
+    singular = interior & finite & (np.abs(det) <= p.rtol * np.maximum(norm2, 1e-300) ** n)
+    zeros = _sign_change_zeros(p.scene, p.i, "det", tx, det, interior & finite, pairs, p.args,
+                               p.scale)
     c2_points = list(kink_points) + list(tx[singular]) + list(zeros)
     parts = [f"at {k_int} interior points"]
     if len(kink_points):
@@ -568,19 +619,21 @@ def _check_surface(scene, i, ts, xs, args, box, delta, scale, rtol):
         parts.append(f"det DJ changes sign: {len(zeros)} zero(s) located")
     if len(parts) == 1 and k_int:
         parts.append(f"min |det DJ| = {np.abs(det[interior]).min():.3g}")
-    out.append(
-        _result(
-            "C2", i, name, None if k_int == 0 else len(c2_points) == 0, "; ".join(parts), c2_points
-        )
-    )
+    result = p.result("C2", None if k_int == 0 else len(c2_points) == 0, "; ".join(parts),
+                      c2_points)
+    return result, finite, singular, det
 
-    # ---- (C4) ----
+
+def _c4(p: _Piece):
+    """(C4): the approach rate ∂Φ/∂t + ∇Φ·f nonzero and without sign changes at interior
+    samples. Returns the result and the tangential samples (for (A1))."""
+    ev, interior, tx = p.ev, p.interior, p.tx
+    k_int = int(interior.sum())
     f = ev["f"]
     rate = ev["phi_t"] + np.einsum("ij,ij->i", ev["grad"], f)
-    size = grad_norm * np.linalg.norm(f, axis=1) + np.abs(ev["phi_t"])
-    flat = interior & (np.abs(rate) <= rtol * size + 1e-300)
-    flat_rate = flat
-    zeros = _sign_change_zeros(scene, i, "rate", tx, rate, interior, pairs, args, scale)
+    size = p.grad_norm * np.linalg.norm(f, axis=1) + np.abs(ev["phi_t"])
+    flat = interior & (np.abs(rate) <= p.rtol * size + 1e-300)
+    zeros = _sign_change_zeros(p.scene, p.i, "rate", tx, rate, interior, p.pairs, p.args, p.scale)
     c4_points = list(tx[flat]) + list(zeros)
     detail = f"approach rate ∂Φ/∂t + ∇Φ·f at {k_int} interior points"
     if k_int:
@@ -589,109 +642,90 @@ def _check_surface(scene, i, ts, xs, args, box, delta, scale, rtol):
         detail += f"; zero (tangency or f = 0) at {int(flat.sum())} points"
     if len(zeros):
         detail += f"; changes sign: tangency located at {len(zeros)} interior point(s)"
-    out.append(
-        _result("C4", i, name, None if k_int == 0 else len(c4_points) == 0, detail, c4_points)
-    )
+    return p.result("C4", None if k_int == 0 else len(c4_points) == 0, detail, c4_points), flat
 
-    # ---- (C5) ----
+
+def _c5(p: _Piece, finite, singular, det) -> ConditionResult:
+    """(C5): the rate of Φ̃ = Φ ∘ J⁻¹ along f at the images J(x) of interior samples."""
+    ev, interior, tx = p.ev, p.interior, p.tx
     invertible = interior & finite & ~singular & (np.abs(det) > 0)
     if not invertible.any():
-        out.append(
-            _result(
-                "C5",
-                i,
-                name,
-                None,
-                "not testable: DJ is singular at every interior sample, so Φ̃ = Φ ∘ J⁻¹ is undefined",
-            )
+        return p.result(
+            "C5",
+            None,
+            "not testable: DJ is singular at every interior sample, so Φ̃ = Φ ∘ J⁻¹ is undefined",
         )
-    else:
-        w = np.zeros_like(ev["grad"])
-        w[invertible] = np.linalg.solve(
-            np.transpose(DJ[invertible], (0, 2, 1)), ev["grad"][invertible][..., None]
-        )[..., 0]
-        img_rate = ev["phi_t"] + np.einsum("ij,ij->i", w, ev["f_post"] - ev["J_t"])
-        img_size = np.linalg.norm(w, axis=1) * np.linalg.norm(ev["f_post"], axis=1) + np.abs(
-            ev["phi_t"]
-        )
-        flat = invertible & (np.abs(img_rate) <= rtol * img_size + 1e-300)
-        zeros = _sign_change_zeros(
-            scene, i, "image_rate", tx, img_rate, invertible, pairs, args, scale
-        )
-        c5_points = [
-            np.concatenate([[p[0]], np.asarray(surface.jump(p[0], jnp.asarray(p[1:]), args))])
-            for p in list(tx[flat]) + list(zeros)
-        ]
-        detail = (
-            f"rate of Φ̃ along f at the images J(x) of {int(invertible.sum())} interior points: "
-            f"range [{img_rate[invertible].min():.3g}, {img_rate[invertible].max():.3g}]"
-        )
-        if len(c5_points):
-            detail += f"; zero at {len(c5_points)} image point(s) (reported as points of Γ̃)"
-        skipped = int(interior.sum() - invertible.sum())
-        if skipped:
-            detail += f"; {skipped} samples skipped (DJ singular)"
-        out.append(_result("C5", i, name, len(c5_points) == 0, detail, c5_points))
+    DJ = ev["DJ"]
+    w = np.zeros_like(ev["grad"])
+    w[invertible] = np.linalg.solve(
+        np.transpose(DJ[invertible], (0, 2, 1)), ev["grad"][invertible][..., None]
+    )[..., 0]
+    img_rate = ev["phi_t"] + np.einsum("ij,ij->i", w, ev["f_post"] - ev["J_t"])
+    img_size = np.linalg.norm(w, axis=1) * np.linalg.norm(ev["f_post"], axis=1) + np.abs(
+        ev["phi_t"]
+    )
+    flat = invertible & (np.abs(img_rate) <= p.rtol * img_size + 1e-300)
+    zeros = _sign_change_zeros(
+        p.scene, p.i, "image_rate", tx, img_rate, invertible, p.pairs, p.args, p.scale
+    )
+    c5_points = [
+        np.concatenate([[q[0]], np.asarray(p.surface.jump(q[0], jnp.asarray(q[1:]), p.args))])
+        for q in list(tx[flat]) + list(zeros)
+    ]
+    detail = (
+        f"rate of Φ̃ along f at the images J(x) of {int(invertible.sum())} interior points: "
+        f"range [{img_rate[invertible].min():.3g}, {img_rate[invertible].max():.3g}]"
+    )
+    if len(c5_points):
+        detail += f"; zero at {len(c5_points)} image point(s) (reported as points of Γ̃)"
+    skipped = int(interior.sum() - invertible.sum())
+    if skipped:
+        detail += f"; {skipped} samples skipped (DJ singular)"
+    return p.result("C5", len(c5_points) == 0, detail, c5_points)
 
-    out.extend(_c3_a1(scene, i, name, tx, ev, interior, pairs, flat_rate, args, scale))
 
-    # ---- ∂Γ, (C6), (C7) ----
+def _c6_c7(p: _Piece) -> list[ConditionResult]:
+    """∂Γ located between neighbours on either side of `where`; (C6) J = id there, (C7)
+    J⁻¹ = id on its image."""
+    surface, args = p.surface, p.args
     if surface.where is None:
-        boundary = np.zeros((0, tx.shape[1]))
+        boundary = np.zeros((0, p.width))
         where_note = "the piece has no `where`, so no boundary"
     else:
-        side = np.where(ev["inside"], 1.0, -1.0)
-        boundary = _sign_change_zeros(scene, i, "where", tx, side, converged, pairs, args, scale)
+        side = np.where(p.ev["inside"], 1.0, -1.0)
+        boundary = _sign_change_zeros(p.scene, p.i, "where", p.tx, side, p.converged, p.pairs,
+                                      args, p.scale)
         where_note = f"{len(boundary)} boundary point(s) located in the box"
     if len(boundary) == 0:
-        out.append(_result("C6", i, name, True, f"vacuous: {where_note}"))
-        out.append(_result("C7", i, name, True, f"vacuous: {where_note}"))
-        return out
+        return [p.result("C6", True, f"vacuous: {where_note}"),
+                p.result("C7", True, f"vacuous: {where_note}")]
     bt, bx = boundary[:, 0], boundary[:, 1:]
     post = np.asarray(
         jax.vmap(lambda t_, x_: surface.jump(t_, x_, args))(jnp.asarray(bt), jnp.asarray(bx))
     )
     moved = np.max(np.abs(post - bx), axis=1)
     bad6 = moved > 1e-8 * (1 + np.max(np.abs(bx), axis=1))
-    out.append(
-        _result(
-            "C6",
-            i,
-            name,
-            not bad6.any(),
-            f"{where_note}; max ‖J(b) − b‖∞ = {moved.max():.3g}",
-            boundary[bad6],
-        )
-    )
+    c6 = p.result("C6", not bad6.any(), f"{where_note}; max ‖J(b) − b‖∞ = {moved.max():.3g}",
+                  boundary[bad6])
     inv, ok = (
-        np.asarray(v) for v in _inverse_at(scene, i, jnp.asarray(bt), jnp.asarray(post), args)
+        np.asarray(v) for v in _inverse_at(p.scene, p.i, jnp.asarray(bt), jnp.asarray(post), args)
     )
     if not ok.any():
-        out.append(
-            _result(
-                "C7",
-                i,
-                name,
-                None,
-                f"not testable: J⁻¹ could not be solved at the {len(post)} point(s) of ∂Γ̃ = J(∂Γ)",
-            )
-        )
-    else:
-        moved7 = np.max(np.abs(inv - post), axis=1)
-        bad7 = ok & (moved7 > 1e-8 * (1 + np.max(np.abs(post), axis=1)))
-        pts = np.concatenate([bt[:, None], post], axis=1)[bad7]
-        note = "" if ok.all() else f"; J⁻¹ not solved at {int((~ok).sum())} point(s)"
-        out.append(
-            _result(
-                "C7",
-                i,
-                name,
-                not bad7.any(),
-                f"at {int(ok.sum())} point(s) of ∂Γ̃ = J(∂Γ): max ‖J⁻¹(b̃) − b̃‖∞ = {moved7[ok].max():.3g}{note}",
-                pts,
-            )
-        )
-    return out
+        return [c6, p.result(
+            "C7",
+            None,
+            f"not testable: J⁻¹ could not be solved at the {len(post)} point(s) of ∂Γ̃ = J(∂Γ)",
+        )]
+    moved7 = np.max(np.abs(inv - post), axis=1)
+    bad7 = ok & (moved7 > 1e-8 * (1 + np.max(np.abs(post), axis=1)))
+    pts = np.concatenate([bt[:, None], post], axis=1)[bad7]
+    note = "" if ok.all() else f"; J⁻¹ not solved at {int((~ok).sum())} point(s)"
+    return [c6, p.result(
+        "C7",
+        not bad7.any(),
+        f"at {int(ok.sum())} point(s) of ∂Γ̃ = J(∂Γ): max ‖J⁻¹(b̃) − b̃‖∞ = {moved7[ok].max():.3g}{note}",
+        pts,
+    )]
 
 
 def _c3_a1(scene, i, name, tx, ev, interior, pairs, flat_rate, args, scale):
