@@ -16,7 +16,7 @@ Sections:
    x_final·(1, 1), differentiated with respect to 7 inputs (x0 and the 5 args). Times:
    the primal run, `jax.jacfwd` (default adjoint, 7 tangents) and `jax.grad` with
    `diffrax.RecursiveCheckpointAdjoint(checkpoints=c)` for several c (None: grazejax's
-   default, two levels of every-step checkpoints, `_simulate._two_level_checkpointed`;
+   default, two levels of every-step checkpoints, `_loop/reverse.py: two_level_checkpointed`;
    447 = ⌊√(2·max_steps)⌋ for max_steps = 100 000 is what Equinox's own schedule takes
    by default, grazejax's default before).
 2. **memory**: XLA's own account of each compiled program,

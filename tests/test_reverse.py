@@ -119,7 +119,7 @@ def test_ball_grad_under_vmap_and_jit():
     for lane, p in enumerate(ps):
         assert_close(batched[lane], jax.grad(ball_loss_exact)(p), EXACT)
     assert_close(batched[0], ball_rca(ps[0]), MODES)
-    # Every step stored, under vmap (as carries: `_stores_pay`; the log in the carry).
+    # Every step stored, under vmap (as carries: `stores_pay`; the log in the carry).
     every = diffrax.RecursiveCheckpointAdjoint(checkpoints=DIRECT_STEPS)
     stored = jax.jit(jax.vmap(jax.grad(lambda p: ball_loss(p, every, DIRECT_STEPS))))(ps)
     assert_close(stored, batched, MODES)
@@ -509,12 +509,12 @@ def test_simultaneous_impacts_overflowing_the_log():
 
 def test_checkpoints_at_max_steps_mean_every_step():
     """`checkpoints >= max_steps` stores every one of the loop's max_steps + 1 iterations
-    (see `_checkpoint_count`), with the same gradient as the default schedule."""
-    from grazejax._simulate import _checkpoint_count
+    (see `_loop/reverse.py: checkpoint_count`), with the same gradient as the default schedule."""
+    from grazejax._loop.reverse import checkpoint_count
 
-    assert _checkpoint_count(None, 100) is None
-    assert _checkpoint_count(30, 100) == 30
-    assert _checkpoint_count(100, 100) == _checkpoint_count(10**6, 100) == 101
+    assert checkpoint_count(None, 100) is None
+    assert checkpoint_count(30, 100) == 30
+    assert checkpoint_count(100, 100) == checkpoint_count(10**6, 100) == 101
     p = jnp.asarray(BALL_P)
     every_step = diffrax.RecursiveCheckpointAdjoint(checkpoints=DIRECT_STEPS)
     reverse = jax.jit(jax.grad(lambda q: ball_loss(q, every_step, DIRECT_STEPS)))(p)
@@ -535,31 +535,31 @@ def test_checkpoints_at_max_steps_mean_every_step():
 
 # Both ways of storing every step in reverse mode: each step's linearisation (small
 # residuals, `_loop/stored.py`) or its carry (Equinox's checkpointed loop), whichever
-# `_stores_pay` picks for a scene; both must give jacfwd's gradients. JAX's caches are
+# `stores_pay` picks for a scene; both must give jacfwd's gradients. JAX's caches are
 # cleared around each, as `simulate`'s compiled programs do not depend on the threshold.
 @pytest.fixture(params=[True, False], ids=["linearisations", "carries"])
 def stores(request, monkeypatch):
-    import grazejax._simulate as simulate_module
+    import grazejax._loop.reverse as reverse_module
 
     jax.clear_caches()
     request.addfinalizer(jax.clear_caches)
-    monkeypatch.setattr(simulate_module, "_STORED_RESIDUAL_BYTES",
+    monkeypatch.setattr(reverse_module, "_STORED_RESIDUAL_BYTES",
                         10**9 if request.param else -1)
     return request.param
 
 
 def test_every_step_checkpoints_with_the_log_staged(monkeypatch, stores):
     """`checkpoints >= max_steps` with a log over 512 bytes: one loop, every step's
-    linearisation stored, the log staged (`_every_step_stored`: the rows a step staged
+    linearisation stored, the log staged (`every_step_stored`: the rows a step staged
     move to the full log, a write-once buffer, after it). The same primal results as the
     forward-mode loop, and jacfwd's gradients: plain impacts, MAX_STEPS, sliding
     (STICK/RELEASE rows) and two rows from one landing (simultaneous impacts)."""
-    import grazejax._simulate as simulate_module
+    import grazejax._loop.reverse as reverse_module
 
     taken = []
-    original = simulate_module.stage_log
+    original = reverse_module.stage_log
     monkeypatch.setattr(
-        simulate_module, "stage_log", lambda c, rows: taken.append(rows) or original(c, rows)
+        reverse_module, "stage_log", lambda c, rows: taken.append(rows) or original(c, rows)
     )
     p = jnp.asarray(BALL_P)
 
@@ -602,15 +602,15 @@ def test_every_step_checkpoints_with_the_log_staged(monkeypatch, stores):
 
 def test_default_checkpoints_two_levels(monkeypatch, stores):
     """`RecursiveCheckpointAdjoint()` runs two levels of loops, chunks of ~√max_steps
-    steps that store their steps' linearisations (`_two_level_checkpointed`; with a log over 512 bytes its
+    steps that store their steps' linearisations (`two_level_checkpointed`; with a log over 512 bytes its
     outer iterations also end at each landing with rows, the log staged). Small `max_steps` so that chunks end inside flights: gradients equal
     jacfwd's, also for runs that end at MAX_STEPS and at MAX_IMPACTS."""
-    import grazejax._simulate as simulate_module
+    import grazejax._loop.reverse as reverse_module
 
     taken = []  # the staging log's rows, each time the loop stages the log
-    original = simulate_module.stage_log
+    original = reverse_module.stage_log
     monkeypatch.setattr(
-        simulate_module, "stage_log", lambda c, rows: taken.append(rows) or original(c, rows)
+        reverse_module, "stage_log", lambda c, rows: taken.append(rows) or original(c, rows)
     )
 
     def loss(q, adjoint, max_steps, impacts):

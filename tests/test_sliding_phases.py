@@ -1,5 +1,5 @@
 """`ZenoStick` runs step in phases: `program.free_step` while no lane slides, the full
-`program.step` while one does (`_simulate._staged_log_loop`, `_pool._in_phases`).
+`program.step` while one does (`_loop/forward.py: staged_log_loop`, `_pool._in_phases`).
 
 The phases are a cost saving only (a run that never slides paid 1.25× for the per-step
 sliding tests at batch 1): the results must equal the flat loop's bit for bit, in single
@@ -33,7 +33,7 @@ def flat_loop(monkeypatch):
     class Flat:
         def __enter__(self):
             monkeypatch.setattr(
-                simulate_module, "_staged_log_loop",
+                simulate_module, "staged_log_loop",
                 lambda cond, program, init: lax.while_loop(cond, program.step, init),
             )
 

@@ -1,4 +1,4 @@
-"""The impact log written outside the stepping loop (`_simulate._staged_log_loop`).
+"""The impact log written outside the stepping loop (`_loop/forward.py: staged_log_loop`).
 
 A single run whose log is larger than XLA:CPU's 512-byte threshold steps in an inner loop
 with a staging log of one landing's rows, and moves them to the full log in an outer loop
@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 import grazejax as gj
-import grazejax._simulate as simulate_module
+import grazejax._loop.forward as forward_module
 from grazejax import examples as ex
 
 from .helpers import unit_box
@@ -27,13 +27,13 @@ BOX_ARGS = {"rx": 0.9, "ry": 0.9}
 def staged_calls(monkeypatch):
     """Count the runs that took the staged loop (one call of `stage_log` per trace)."""
     calls = []
-    original = simulate_module.stage_log
+    original = forward_module.stage_log
 
     def spy(c, rows):
         calls.append(rows)
         return original(c, rows)
 
-    monkeypatch.setattr(simulate_module, "stage_log", spy)
+    monkeypatch.setattr(forward_module, "stage_log", spy)
     return calls
 
 

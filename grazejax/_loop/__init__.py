@@ -9,7 +9,11 @@
 - `policies.py`: what happens at a Zeno accumulation or a sticking contact.
 - `program.py`: `init`, `step`, `running`, `finish` of one lane, as a `Program`.
 - `compact.py`: phases that only some lanes need, paid for by those lanes under `vmap`.
-- `stored.py`, `bounded.py`: loops for reverse mode (each step's linearisation stored;
-  `DirectAdjoint`'s nested scans).
+- `forward.py`: the forward-mode loop, in phases where they gain (the impact log written
+  outside the loop that steps; sliding steps only while something slides).
+- `reverse.py`: the loops that reverse mode differentiates, one per `adjoint` (two levels
+  of checkpoints by default, every step stored, Equinox's checkpointed loop), built on
+  `stored.py` (each step's linearisation stored) and `bounded.py` (`DirectAdjoint`'s
+  nested scans).
 - `replay.py`: the step decisions that reverse mode's re-runs of steps replay.
 """

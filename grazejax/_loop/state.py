@@ -260,7 +260,7 @@ def stage_log(c: LoopState, rows: int):
     are written in the body, so a log of more than 32 two-dimensional rows (the default
     holds 100) made every single-trajectory run 1.5-1.7× slower. A staging log of one
     landing's rows keeps the body under the threshold; the loop stops when a lane has staged
-    a row, and the rows go to the full log outside it (`_simulate._staged_log_loop`).
+    a row, and the rows go to the full log outside it (`forward.py: staged_log_loop`).
 
     The staging rows are filled from small fields of the state that have the batch axes
     and tangents the rows will have (`where(False, field, fill)` is `fill`, folded by XLA),

@@ -10,7 +10,7 @@ the loop.
 
 Why blocks: XLA:CPU runs a sequence of kernels one after another only if none of them
 touches a buffer over 512 bytes, and otherwise through its dataflow executor, whose
-bookkeeping costs more than a small step's kernels (see `_simulate._nested`). A step's
+bookkeeping costs more than a small step's kernels (see `reverse.py: _nested`). A step's
 residuals (~1 KB) and their store are over that size, so an inner loop runs up to `block`
 steps and stages their residuals in pieces of at most 512 bytes (`_Layout`), and an outer
 loop moves a block's pieces to the store; the backward pass reads a block's pieces and
@@ -18,7 +18,7 @@ applies its pullbacks in an inner loop of the same kind. Forced impact oscillato
 impacts, every step stored, one core, min of 11: 3.0x the primal, against 3.55x with
 Equinox's checkpointed loop storing every step. Storing pays only while a step's
 residuals are small (many pieces, and their store, cost more than running a step again):
-`_simulate._stores_pay` picks this loop or Equinox's.
+`reverse.py: stores_pay` picks this loop or Equinox's.
 """
 
 import functools

@@ -1,0 +1,279 @@
+"""The impact loop in reverse mode: the loops that `jax.grad` differentiates.
+
+Which loop runs is `simulate`'s choice (`_simulate.run_loop`, by `adjoint`):
+`two_level_checkpointed` (the default `RecursiveCheckpointAdjoint()`), `every_step_stored`
+or `every_step_staged` (a checkpoint per step), `checkpointed_deciding` (Equinox's
+checkpointed loop with a given number of checkpoints). Every loop that runs steps again in
+its backward pass replays the first pass's step decisions (`replay.py`).
+"""
+
+import math
+
+import equinox as eqx
+import equinox.internal as eqxi
+import jax
+import jax.lax as lax
+import jax.numpy as jnp
+
+from .forward import stages_log, under_vmap
+from .program import Program
+from .replay import row, set_row, unrecorded_decisions
+from .state import flush_log, has_staged_rows, impact_log, packing, stage_log, with_full_log
+from .stored import residual_bytes, stored_while_loop
+
+
+def two_level_checkpointed(cond, program: "Program", init, bound: int):
+    """`while cond: step` for at most `bound` iterations, reverse-differentiable with
+    two levels: an Equinox checkpointed loop stores the state every `chunk ≈ √bound`
+    steps, and each chunk is a loop that stores its steps' linearisations
+    (`_loop/stored.py`) while the backward pass crosses it, or, where a step's residuals
+    are large (`stores_pay`), an Equinox loop with a checkpoint per step. The price is
+    one more forward pass over each chunk; memory: ~√bound carries and `chunk` rows of
+    residuals (or carries), whatever the run's length.
+
+    History, forced impact oscillator, one core, min of 7, each against the previous code
+    in the same minutes: Equinox's own schedule (√(2·bound) ≈ 447 checkpoints, recursive
+    recomputation) 10.2/11.0x the primal at 100/1000 impacts -> two levels of Equinox
+    loops with a checkpoint per iteration 8.0/8.3x; the log staged (below) 5.9/6.7/6.8x
+    at 10/100/1000 impacts; each step as a nested computation (`_nested`)
+    4.7/4.8/5.0x; the chunks as loops that store linearisations (no step of a chunk run
+    a third time in the backward pass) 4.53/4.69/4.96x -> 3.97/4.16/4.42x (same process,
+    min of 9), gradients bit-equal. The chunk length mattered little (64 or 2048 steps: within 1%).
+
+    The backward pass runs each chunk again from its checkpoint: the first pass records
+    every step's decisions (a row per step, a write-once buffer) and the re-run replays
+    them (`_loop/replay.py`), so that XLA's different
+    rounding of the re-run cannot make it take other steps (gradients were off by up to
+    3.3e-8 relative at rtol = 1e-12). Cost, alternately with the code before (two rounds):
+    4.2-4.5/4.5/4.5-4.6x the primal at 10/100/1000 impacts against 3.8-4.3/4.3/4.5x.
+
+    Where a single run stages its log (`stages_log`), an outer iteration also ends at a
+    landing that wrote rows, and moves them to the full log (the outer loop's write-once
+    buffers; ~one more carry per log row). The inner loop then carries one landing's rows
+    instead of the whole log, so its passes run on XLA's sequential executor as the
+    primal does.
+    """
+    chunk = math.isqrt(bound - 1) + 1
+    outer_bound = -(-bound // chunk)
+    pack, unpack = packing(init)
+    staging = stages_log(program, init)
+    if staging:
+        rows = program.log_rows_per_landing
+        # An outer iteration runs a whole chunk, or stops at a landing with rows (at most
+        # one per row of the log, and the one that fills it ends the run), or at the end.
+        outer_bound += impact_log(init)[0].shape[0] + 2
+        inner_pack, inner_unpack = packing(stage_log(init, rows)[0])
+    else:
+        inner_pack, inner_unpack = pack, unpack
+
+    def inner_cond(packed):
+        z = inner_unpack(packed)
+        return cond(z) & ~eqxi.unvmap_any(has_staged_rows(z)) if staging else cond(z)
+
+    store_linearisations = stores_pay(program, init)
+    # The step decisions, recorded by the first pass and replayed where the backward pass
+    # runs a chunk again (`_loop/replay.py`): row n for a lane's step n
+    # (a chunk writes `chunk` rows from its first step; rows past its last step are
+    # written again by the next chunk), an Equinox buffer (its backward pass reads it
+    # filled). (A row per outer iteration would grow with the log: staged landings end
+    # outer iterations.)
+    record = unrecorded_decisions(init.s, (bound + chunk,))
+
+    def outer_step(carry):
+        packed, record = carry
+        c = unpack(packed)
+        chunk_steps = c.num_steps + jnp.arange(chunk)
+        forced = jax.lax.stop_gradient(row(record, chunk_steps))
+        staged, full_log = stage_log(c, rows) if staging else (c, None)
+        if store_linearisations:
+            staged, _, decided = stored_while_loop(
+                inner_cond, _packed_deciding(program, inner_pack, inner_unpack),
+                inner_pack(staged), chunk, replay=forced,
+            )
+        else:
+            staged, decided = checkpointed_deciding(
+                inner_cond, program, inner_pack, inner_unpack, staged, chunk, chunk,
+                buffers=not staging, forced=forced)
+        staged = inner_unpack(staged)
+        record = set_row(record, chunk_steps, decided)
+        return pack(flush_log(staged, full_log) if staging else staged), record
+
+    final, _ = eqxi.while_loop(
+        lambda carry: cond(unpack(carry[0])), outer_step, (pack(init), record),
+        max_steps=outer_bound, kind="checkpointed", checkpoints=outer_bound,
+        buffers=lambda carry: (carry[0][1], carry[1]),
+    )
+    return unpack(final)
+
+
+def _packed_deciding(program: "Program", pack, unpack):
+    """`program.deciding_step` on packed states."""
+
+    def step(packed, forced):
+        c, decided = program.deciding_step(unpack(packed), forced)
+        return pack(c), decided
+
+    return step
+
+
+def checkpointed_deciding(cond, program: "Program", pack, unpack, c, bound: int,
+                           checkpoints: int, *, buffers: bool, forced=None):
+    """`while cond(packed): step` from `c`, at most `bound` steps, in Equinox's
+    checkpointed loop (each step nested, `_nested`), replaying recorded step decisions
+    (`_loop/replay.py`): those of `forced` (one row per step, from an earlier pass), else
+    the loop's own record (a write-once buffer: Equinox's backward pass, which runs steps
+    again from its checkpoints, reads it filled). Returns the packed state and the
+    decisions taken."""
+    step = _nested(program.deciding_step, pack, unpack, deciding=True)
+
+    def body(carry):
+        packed, j, decided = carry
+        packed, taken = step(packed, row(decided if forced is None else forced, j))
+        return packed, j + 1, set_row(decided, j, taken)
+
+    packed, _, decided = eqxi.while_loop(
+        lambda carry: cond(carry[0]), body,
+        (pack(c), jnp.asarray(0), unrecorded_decisions(c.s, (bound,))),
+        max_steps=bound, kind="checkpointed", checkpoints=checkpoints,
+        buffers=lambda carry: (carry[0][1], carry[2]) if buffers else carry[2],
+    )
+    return packed, decided
+
+
+def every_step_stored(cond, program: "Program", init, bound: int):
+    """`while cond: step` for at most `bound` steps, every step's linearisation stored
+    (`_loop/stored.py`): the backward pass applies the stored pullbacks and runs no step
+    again. Where a single run stages its log (`stages_log`), the loop carries one
+    landing's rows and writes them to the full log (write-once buffers) after the step
+    that staged them. Forced impact oscillator, 1000-row log, one core, min of 9, against
+    Equinox's checkpointed loop with a checkpoint per step in the same process:
+    3.56/3.76/3.92x -> 2.94/3.24/3.76x the primal at 10/100/1000 impacts."""
+    if not stages_log(program, init):
+        pack, unpack = packing(init)
+        small, _ = stored_while_loop(
+            lambda packed: cond(unpack(packed)),
+            lambda packed: pack(program.step(unpack(packed))), pack(init), bound,
+        )
+        return unpack(small)
+    staged, full_log = stage_log(init, program.log_rows_per_landing)
+    pack, unpack = packing(staged)
+
+    def step(packed):
+        return pack(_staging_own_rows(program)(unpack(packed)))
+
+    small, log = stored_while_loop(
+        lambda packed: cond(unpack(packed)), step, pack(staged), bound,
+        buffers=full_log,
+        write=lambda packed, log: impact_log(flush_log(unpack(packed), log)),
+        ends_block=lambda packed: eqxi.unvmap_any(has_staged_rows(unpack(packed))),
+    )
+    return with_full_log(unpack(small), log)
+
+
+def every_step_staged(cond, program: "Program", init, bound: int):
+    """`while cond: step`, every step a checkpoint, with the impact log staged: the loop
+    carries one landing's rows, and each iteration moves the rows its step wrote to the
+    full log (the loop's write-once buffers) after the step. The step itself, and its VJP,
+    then run in a nested computation with small buffers only (`_nested`), while the full
+    log is written outside it. Forced impact oscillator, 1000-row log, one core, min of 7,
+    the previous commit alternately: 4.9/5.2× → 3.7/3.6× the primal at 10 impacts,
+    5.7/5.6× → 4.0/3.9× at 100; the same results and gradients (`tests/test_reverse.py`)."""
+    staged, full_log = stage_log(init, program.log_rows_per_landing)
+    pack, unpack = packing(staged)
+
+    nested = _nested(_staging_own_rows(program), pack, unpack)
+
+    def body(carry):
+        small, log = carry
+        small = nested(small)
+        return small, impact_log(flush_log(unpack(small), log))
+
+    small, log = eqxi.while_loop(
+        lambda carry: cond(unpack(carry[0])), body, (pack(staged), full_log),
+        max_steps=bound, kind="checkpointed", checkpoints=bound,
+        buffers=lambda carry: carry[1],
+    )
+    return with_full_log(unpack(small), log)
+
+
+def _staging_own_rows(program: "Program"):
+    """The step of the every-step loops that stage the log: row 0 of the staging log is
+    the next impact, so each step stages its own rows (flushed after it)."""
+
+    def step(c):
+        return program.step(eqx.tree_at(lambda z: z.log_base, c, c.num_impacts))
+
+    return step
+
+
+def _nested(step, pack, unpack, *, deciding: bool = False):
+    """The checkpointed loops' body `pack(step(unpack(packed)))`, run as a nested
+    computation: the branch of a `cond` whose predicate is true whenever the body runs
+    (num_steps ≥ 0; XLA cannot fold it), unbatched so that `vmap` keeps it a `cond`.
+    With `deciding`, `step` is `program.deciding_step` and the body
+    `(packed, forced decisions) -> (packed, decisions taken)`.
+
+    Why: XLA:CPU runs a sequence of kernels one after another only if none touches a
+    buffer over 512 bytes (see `stage_log`), and decides it per sequence: a loop body and
+    each branch of a conditional are sequences of their own. An Equinox checkpointed loop's
+    body reads and writes its store of checkpoints, so the whole step (and its VJP in the
+    backward loop) ran on the dataflow executor, whose bookkeeping was ~65% of a gradient's
+    time (perf, forced impact oscillator, 100 impacts). In a branch, the step and its VJP
+    (JAX linearizes and transposes a `cond` branch-wise) run sequentially; only the
+    checkpoint reads, writes and cotangent sums stay outside.
+    """
+    if not deciding:  # `step` without decisions: none forced, none returned
+        with_decisions = _nested(lambda c, forced: (step(c), forced), pack, unpack,
+                                 deciding=True)
+        return lambda packed: with_decisions(packed, ())[0]
+
+    # (packed, forced decisions) -> (packed, decisions taken)
+    def run(operands):
+        c, decided = step(unpack(operands[0]), operands[1])
+        return pack(c), decided
+
+    def body(packed, forced):
+        always = eqxi.unvmap_all(unpack(packed).num_steps >= 0)
+        return lax.cond(always, run, lambda q: q, (packed, forced))
+
+    return body
+
+
+def stores_pay(program: "Program", init) -> bool:
+    """Whether reverse mode stores each step's linearisation (`_loop/stored.py`) rather
+    than a carry per step that the backward pass runs again (Equinox's checkpointed loop).
+
+    Measured (one core, min of 7-11, both in the same process), every step stored / the
+    default two levels: forced impact oscillator, 864 bytes of residuals per step, 3.0x /
+    4.1-4.4x the primal against 3.55x / 4.5-5.0x; a Fourier forcing of 10/40/100
+    coefficients, 3/6/24 KB per step (the pieces the blocks stage them in, and their
+    store, cost more than a step's re-run): 4.7/6.0/6.4x / 5.5/7.6/10.9x against
+    4.0/4.9/4.3x / 5.3/6.3/5.8x. Under `vmap` the stores hold every lane's residuals:
+    forced oscillator, 10 impacts, `vmap(grad)`, 16 lanes 3.40x / 4.14x against 3.55x /
+    4.49x, 128 lanes 6.39x / 6.14x against 4.53x / 5.07x; batched runs keep carries.
+    """
+    if under_vmap(init):
+        return False
+    if stages_log(program, init):
+        init = stage_log(init, program.log_rows_per_landing)[0]
+    pack, unpack = packing(init)
+    step = lambda packed: pack(program.step(unpack(packed)))  # noqa: E731
+    return residual_bytes(step, pack(init)) <= _STORED_RESIDUAL_BYTES
+
+
+# The most residual bytes per step that reverse mode stores (see `stores_pay`).
+_STORED_RESIDUAL_BYTES = 1024
+
+
+def checkpoint_count(checkpoints: int | None, max_steps: int) -> int | None:
+    """The checkpoints to ask Equinox for: `checkpoints >= max_steps` means every step.
+
+    The loop runs up to `max_steps + 1` iterations (the last one marks MAX_STEPS), and
+    Equinox's checkpointed loop takes its fast path (no recomputation, no checkpoint
+    schedule in the backward pass) only when the checkpoints equal its step bound: a user's
+    `RecursiveCheckpointAdjoint(checkpoints=max_steps)` missed it by one and cost 8.9× the
+    primal instead of 5.2× (forced impact oscillator, 10 impacts, max_steps = 1000).
+    """
+    if checkpoints is not None and checkpoints >= max_steps:
+        return max_steps + 1
+    return checkpoints
