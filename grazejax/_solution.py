@@ -129,6 +129,8 @@ _FIXES = {
     "jump, or mark the surface impenetrable=False if Φ < 0 is allowed",
     Status.BAD_START: "start on the free side Φ >= 0 of every impenetrable surface",
     Status.FIELD_DISCONTINUITY: FIELD_FIX,
+    Status.BAD_TIMES: "pass direction=+1 for t1 > t0 and -1 for t1 < t0; forward and backward "
+    "runs are different programs, so a batch with both needs one call for each",
 }
 
 # Statuses that `throw=True` accepts: the run ended the way it was asked to, or at a

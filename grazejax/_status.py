@@ -40,6 +40,11 @@ class Status(enum.IntEnum):
     ([`grazejax.PiecewiseScene`][], docs/piecewise.md), or the side as a state component
     that the jump flips. Outside `jit`/`vmap`, `simulate` raises a `ValueError` instead;
     `simulate(..., check_field_jumps=False)` turns the check off."""
+    BAD_TIMES = 9
+    """`t1` lies on the other side of `t0` from `direction`: times traced inside
+    `jit`/`vmap`, where `direction` fixes which way the compiled run goes. The run did
+    not start (`x_final` = x0, `t_final` = t0). Outside `jit`/`vmap`, `simulate` raises a
+    `ValueError` instead."""
 
     @property
     def message(self) -> str:
@@ -57,6 +62,7 @@ _MESSAGES = {
     Status.BAD_START: "x0 lies inside an impenetrable surface (Φ < 0 beyond round-off)",
     Status.FIELD_DISCONTINUITY: "the vector field jumps at an event surface (sign(·) on the "
     "state): the side after the event is round-off",
+    Status.BAD_TIMES: "t1 lies on the other side of t0 from direction: the run did not start",
 }
 
 

@@ -92,6 +92,35 @@ def test_traced_times_need_direction():
     assert np.all(np.isfinite(run(1.0)))
 
 
+@pytest.mark.parametrize("zeno", ["stop", "stick"])
+def test_traced_t1_behind_direction_does_not_run(zeno):
+    """A traced t1 on the other side of t0 from `direction` would run the compiled
+    direction's loop the other way (it ran x'' = -g backward through the floor and ended
+    BAD_JUMP at x = (-3.9, -7.8)): the lane does not start, with its own status; lanes
+    with t1 on the right side, or t1 = t0, run as alone."""
+    x0 = jnp.array([0.0, 0.0] if zeno == "stick" else [1.0, 0.0])  # "stick": at rest on it
+
+    def run(t1, direction):
+        return gj.simulate(BALL, x0, 0.0, t1, ARGS, direction=direction, zeno=zeno,
+                           max_impacts=8)
+
+    cases = [(1, [0.5, -1.0, 0.0], 1), (-1, [-0.5, 1.0, 0.0], 1)]
+    for direction, t1s, bad in cases[:1] if zeno == "stick" else cases:  # stick: forward only
+        sol = jax.jit(jax.vmap(lambda t1, d=direction: run(t1, d)))(jnp.array(t1s))
+        for lane, t1 in enumerate(t1s):
+            status = gj.Status(int(sol.status[lane]))
+            if lane == bad:
+                assert status == gj.Status.BAD_TIMES
+                assert int(sol.num_impacts[lane]) == 0 and float(sol.t_final[lane]) == 0.0
+                np.testing.assert_array_equal(sol.x_final[lane], x0)
+            else:
+                assert status != gj.Status.BAD_TIMES
+                assert float(sol.t_final[lane]) == t1 or status != gj.Status.SUCCESS
+    with pytest.raises(Exception, match=r"BAD_TIMES.*Fix: pass direction"):
+        jax.jit(lambda t1: gj.simulate(BALL, jnp.array([1.0, 0.0]), 0.0, t1, ARGS, direction=1,
+                                       throw=True).x_final)(-1.0).block_until_ready()
+
+
 def test_nan_inside_jit_is_a_status_not_a_silent_answer():
     run = jax.jit(lambda x0: gj.simulate(BALL, x0, 0.0, 1.0, ARGS).status)
     assert gj.Status(int(run(jnp.array([jnp.nan, 0.0])))) == gj.Status.NONFINITE

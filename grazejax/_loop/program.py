@@ -181,10 +181,15 @@ def init(ctx: LoopContext, x0, args) -> LoopState:
         jnp.full((ctx.max_impacts,), int(ImpactKind.NONE)),
     )
     num_impacts0 = jnp.array(0)
+    # Traced times are not checked before the run (`validate_inputs` needs values): a t1
+    # behind t0 in the compiled direction would run the other way, with the other
+    # direction's surfaces. Such a run does not start.
+    wrong_way = ctx.sigma * (t1 - t0) < 0
     if ctx.sticky:
         x0, stick0, log, num_impacts0, status0, zeno_time0 = stick_at_start(
-            ctx, x0, args, stuck0, status0, zeno_time0, log
+            ctx, x0, args, stuck0 & ~wrong_way, status0, zeno_time0, log
         )
+    status0 = jnp.where(wrong_way, int(Status.BAD_TIMES), status0)
     if ctx.ts is not None:
         save_xs0 = jnp.full((ctx.ts.shape[0], n), jnp.nan, dtype)
         save_index0 = jnp.array(0)
