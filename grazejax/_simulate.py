@@ -323,7 +323,9 @@ def _raise_if_bad_input(sol: Solution):
     if int(status) == Status.BAD_START:
         raise ValueError(
             f"x0 = {sol.x_final} lies inside an impenetrable surface (Φ < 0 beyond round-off, "
-            "inside its `where`): start on the free side Φ >= 0, or mark the surface "
+            "inside its `where`) or on it moving in (the first flight would start inside): "
+            "start on the free side Φ >= 0 (on the surface: moving out, e.g. the "
+            "post-impact state J(x0) of a pre-impact x0), or mark the surface "
             "impenetrable=False if trajectories may live in Φ < 0"
         )
 

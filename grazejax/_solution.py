@@ -127,7 +127,8 @@ _FIXES = {
     "solver (diffrax.Kvaerno5) or looser tolerances",
     Status.BAD_JUMP: "the jump law leaves the state inside its impenetrable surface: check the "
     "jump, or mark the surface impenetrable=False if Φ < 0 is allowed",
-    Status.BAD_START: "start on the free side Φ >= 0 of every impenetrable surface",
+    Status.BAD_START: "start on the free side Φ >= 0 of every impenetrable surface (on one: "
+    "moving out, e.g. the post-impact state of a pre-impact start)",
     Status.FIELD_DISCONTINUITY: FIELD_FIX,
     Status.BAD_TIMES: "pass direction=+1 for t1 > t0 and -1 for t1 < t0; forward and backward "
     "runs are different programs, so a batch with both needs one call for each",

@@ -30,7 +30,9 @@ class Status(enum.IntEnum):
     round-off) or on it still moving in: the scene's jump law contradicts its surface."""
     BAD_START = 7
     """`x0` lies strictly inside an `impenetrable` surface piece (Φ < 0 beyond round-off,
-    inside its `where`): no trajectory of the scene starts there. Outside `jit`/`vmap`,
+    inside its `where`), or on it moving in across it (the first flight would start
+    inside): no trajectory of the scene starts there. (On it at rest, pushed in, is
+    sticking: `ZENO` at `t0`, or sliding with `zeno="stick"`.) Outside `jit`/`vmap`,
     `simulate` raises a `ValueError` instead."""
     FIELD_DISCONTINUITY = 8
     """The vector field jumps at the state a flight restarts from (after an impact or a
@@ -59,7 +61,8 @@ _MESSAGES = {
     Status.NONFINITE: "non-finite state (NaN/inf) from the vector field, a jump or input",
     Status.STEP_SIZE_UNDERFLOW: "step size fell below the resolution of t",
     Status.BAD_JUMP: "a jump on an impenetrable surface left the state inside it or moving in",
-    Status.BAD_START: "x0 lies inside an impenetrable surface (Φ < 0 beyond round-off)",
+    Status.BAD_START: "x0 lies inside an impenetrable surface (Φ < 0 beyond round-off) or "
+    "on it moving in",
     Status.FIELD_DISCONTINUITY: "the vector field jumps at an event surface (sign(·) on the "
     "state): the side after the event is round-off",
     Status.BAD_TIMES: "t1 lies on the other side of t0 from direction: the run did not start",

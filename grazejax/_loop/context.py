@@ -154,15 +154,27 @@ class LoopContext(eqx.Module):
         as_mask = lambda v: jnp.array(v, dtype=bool).reshape((self.m,))  # noqa: E731
         return as_mask(restart), as_mask(stuck), as_mask(pushed)
 
-    def starts_inside(self, t, x, args_, x_scale):
-        """x0 strictly inside an impenetrable piece (beyond its contact floor)."""
-        inside_any = jnp.array(False)
+    def start_on_impenetrable(self, t, x, args_, x_scale):
+        """At a start x, over the impenetrable pieces: `(inside, resting)`.
+
+        `inside`: x strictly inside one (beyond its contact floor), or on it and moving in
+        across it (ġ < 0, not tangential): either way the first flight starts inside
+        (the ball on the floor moving down fell through it with SUCCESS). `resting`: on
+        one at rest, pushed in (tangential, g̈ < 0): sticking from the start, as after a
+        tangential restart (`contact_tests`)."""
+        inside_any = resting_any = jnp.array(False)
         for piece in self.pieces:
             if piece.check_jump_side:
                 floor = piece.floor(t, x, args_, x_scale)
                 in_piece, _ = piece.inside(t, x, args_, self.state_tol)
-                inside_any = inside_any | ((piece.gap(t, x, args_) < -floor) & in_piece)
-        return inside_any
+                g, gd, gdd = self.slopes_at(piece, 1, jnp.zeros_like(t), x, t,
+                                            jnp.zeros_like(t), args_)
+                on = jnp.abs(g) <= floor
+                tangential = is_tangential(gd, gdd, floor)
+                entering = on & (gd < 0) & ~tangential
+                inside_any = inside_any | (((g < -floor) | entering) & in_piece)
+                resting_any = resting_any | (on & tangential & (gdd < 0) & in_piece)
+        return inside_any, resting_any
 
 
 def loop_time(sigma, s, t_hi, t_lo):

@@ -159,11 +159,11 @@ def init(ctx: LoopContext, x0, args) -> LoopState:
     x0_scale = jnp.full_like(x0, jnp.max(jnp.abs(x0)))
     restart0, stuck0, _ = ctx.contact_tests(t0, jnp.zeros_like(t0), x0, args, x0_scale)
     # A start at rest on a surface, pushed in: with ZenoStick, sliding from t0 (or
-    # ZENO at t0 if on two surfaces). With ZenoStop the flight simply starts, into Φ < 0
+    # ZENO at t0 if on two surfaces). With ZenoStop: ZENO at t0 on an impenetrable surface
+    # (as after a tangential restart); on another the flight simply starts, into Φ < 0
     # (the paper's setting: Φ < 0 is not forbidden, only met from above).
-    status0 = jnp.where(
-        ctx.starts_inside(t0, x0, args, x0_scale), int(Status.BAD_START), int(Status.SUCCESS)
-    )
+    inside0, resting0 = ctx.start_on_impenetrable(t0, x0, args, x0_scale)
+    status0 = jnp.where(inside0, int(Status.BAD_START), int(Status.SUCCESS))
     if ctx.check_field_jumps:
         # A start on a surface is a restart like any other: the first flight's first stage
         # must not depend on which side of a jump of f round-off put x0 (`field.py`).
@@ -172,6 +172,10 @@ def init(ctx: LoopContext, x0, args) -> LoopState:
             (status0 == int(Status.SUCCESS)) & jumps0, int(Status.FIELD_DISCONTINUITY), status0
         )
     zeno_time0 = ctx.nan
+    if not ctx.sticky:
+        resting0 = resting0 & (status0 == int(Status.SUCCESS))
+        status0 = jnp.where(resting0, int(Status.ZENO), status0)
+        zeno_time0 = jnp.where(resting0, t0, zeno_time0)
     stick0 = jnp.zeros((m,), bool)
     log = (
         jnp.full((ctx.max_impacts,), jnp.nan, dtype),

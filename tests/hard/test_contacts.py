@@ -123,13 +123,27 @@ def test_start_inside_an_impenetrable_floor_is_an_error():
 
 
 def test_start_inside_is_a_status_under_jit_and_per_lane_under_vmap():
-    run = jax.jit(jax.vmap(lambda h: _ball(jnp.stack([h, 0.0 * h]), 2.0, e=0.8, direction=1)))
-    sol = run(jnp.array([-1.0, 1.0, 0.0]))
-    status = [gj.Status(int(s)) for s in sol.status]
-    assert status[0] == gj.Status.BAD_START
-    assert status[1] == gj.Status.SUCCESS  # an ordinary drop
-    assert status[2] == gj.Status.SUCCESS  # on the floor is not inside it
-    assert float(sol.x_final[1, 0]) >= 0.0
+    """Per lane: inside the floor, or on it moving down, is BAD_START (the lane on the
+    floor moving down, and the one at rest on it, fell through it with SUCCESS before);
+    at rest on it is sticking (ZENO at t0); on it moving up, or above it, a flight."""
+    run = jax.jit(jax.vmap(lambda x0: _ball(x0, 1.0, e=0.8, direction=1)))
+    starts = jnp.array([[-1.0, 0.0], [1.0, 0.0], [0.0, 0.0], [0.0, -1.0], [0.0, 1.0],
+                        [-1e-17, -1e-12], [0.0, -1e-300]])  # (tiny but transversal; tangential)
+    sol = run(starts)
+    status = [gj.Status(int(s)).name for s in sol.status]
+    assert status == ["BAD_START", "SUCCESS", "ZENO", "BAD_START", "SUCCESS", "BAD_START",
+                      "ZENO"]
+    for lane in (0, 2, 3, 5, 6):  # did not start
+        np.testing.assert_array_equal(sol.x_final[lane], starts[lane])
+        assert float(sol.t_final[lane]) == 0.0 and int(sol.num_impacts[lane]) == 0
+    assert float(sol.zeno_time[2]) == float(sol.zeno_time[6]) == 0.0
+    assert np.all(np.asarray(sol.x_final[1:, 0]) >= -1e-12)  # nobody went below the floor
+    with pytest.raises(ValueError, match="moving in"):
+        _ball([0.0, -1.0], 2.0)
+    # zeno="stick": at rest on the floor it rests (slides), and never goes below it.
+    rest = gj.simulate(BALL, jnp.array([0.0, 0.0]), 0.0, 2.0, {"g": G, "e": 0.8}, zeno="stick")
+    assert gj.Status(int(rest.status)) == gj.Status.SUCCESS
+    np.testing.assert_allclose(np.asarray(rest.x_final), 0.0, atol=1e-12)
 
 
 def test_start_inside_a_penetrable_surface_is_allowed():
