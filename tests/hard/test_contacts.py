@@ -146,6 +146,54 @@ def test_start_inside_is_a_status_under_jit_and_per_lane_under_vmap():
     np.testing.assert_allclose(np.asarray(rest.x_final), 0.0, atol=1e-12)
 
 
+def _tilted_floor():
+    """A particle under gravity above an impenetrable plane through 0 with unit normal
+    `args["n"]`, restitution 0.8 along the normal."""
+    def field(t, x, a):
+        return jnp.stack([x[2], x[3], 0.0 * x[2], -G + 0.0 * x[3]])
+
+    def jump(t, x, a):
+        n = a["n"]
+        return jnp.concatenate([x[:2], x[2:] - 1.8 * jnp.dot(x[2:], n) * n])
+
+    floor = gj.Surface(phi=lambda t, x, a: a["n"][0] * x[0] + a["n"][1] * x[1], jump=jump,
+                       impenetrable=True)
+    return gj.Scene(field, [floor])
+
+
+@pytest.mark.parametrize("zeno", ["stop", "stick"])
+def test_starts_on_a_tilted_floor_campaign(zeno):
+    """Seeded campaign: 300 starts on planes tilted up to ±69° (the points on the plane
+    only to round-off), moving into it, out of it, or along it. Into it: BAD_START, every
+    one; out of it: a flight; along it (gravity pushes in): sticking at t0 (ZENO), or with
+    zeno="stick" sliding down the plane. No lane ends below its plane by more than
+    round-off."""
+    rng = np.random.default_rng(3)
+    n_lanes = 300
+    angle = rng.uniform(-1.2, 1.2, n_lanes)
+    normal = np.stack([np.sin(angle), np.cos(angle)], 1)
+    tangent = np.stack([normal[:, 1], -normal[:, 0]], 1)
+    kind = rng.integers(0, 3, n_lanes)  # 0: into, 1: out of, 2: along
+    speed_n = rng.uniform(0.01, 3, n_lanes) * np.where(kind == 0, -1, 1) * (kind != 2)
+    velocity = rng.uniform(-2, 2, n_lanes)[:, None] * tangent + speed_n[:, None] * normal
+    x0 = np.concatenate([rng.uniform(-2, 2, n_lanes)[:, None] * tangent, velocity], 1)
+    run = jax.jit(jax.vmap(lambda x, n: gj.simulate(
+        _tilted_floor(), x, 0.0, 0.5, {"n": n}, direction=1, max_impacts=64, zeno=zeno)))
+    sol = run(jnp.asarray(x0), jnp.asarray(normal))
+    status = np.array([gj.Status(int(c)).name for c in sol.status])
+    t_final = np.asarray(sol.t_final)
+    assert np.all(status[kind == 0] == "BAD_START")
+    out = kind == 1
+    assert np.all(np.isin(status[out], ["SUCCESS", "ZENO"])) and np.all(t_final[out] > 0)
+    along = kind == 2
+    if zeno == "stop":
+        assert np.all(status[along] == "ZENO") and np.all(t_final[along] == 0.0)
+    else:
+        assert np.all(status[along] == "SUCCESS") and np.all(t_final[along] == 0.5)
+    gap = np.einsum("ij,ij->i", np.asarray(sol.x_final)[:, :2], normal)
+    assert gap.min() >= -1e-12, gap.min()
+
+
 def test_start_inside_a_penetrable_surface_is_allowed():
     scene = gj.Scene(BALL.vector_field, [gj.Surface(BALL.surfaces[0].phi,
                                                     BALL.surfaces[0].jump)])
