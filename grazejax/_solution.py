@@ -125,8 +125,8 @@ _FIXES = {
     "near x_final",
     Status.STEP_SIZE_UNDERFLOW: "the flow is stiff or singular near x_final: try an implicit "
     "solver (diffrax.Kvaerno5) or looser tolerances",
-    Status.BAD_JUMP: "the jump law leaves the state inside its impenetrable surface: check the "
-    "jump, or mark the surface impenetrable=False if Φ < 0 is allowed",
+    Status.BAD_JUMP: "a jump law leaves the state inside an impenetrable surface (its own or "
+    "another): check the jumps, or mark the surface impenetrable=False if Φ < 0 is allowed",
     Status.BAD_START: "start on the free side Φ >= 0 of every impenetrable surface (on one: "
     "moving out, e.g. the post-impact state of a pre-impact start)",
     Status.FIELD_DISCONTINUITY: FIELD_FIX,

@@ -26,8 +26,9 @@ class Status(enum.IntEnum):
     STEP_SIZE_UNDERFLOW = 5
     """The step size controller shrank the step below the resolution of t."""
     BAD_JUMP = 6
-    """A jump on an `impenetrable` surface left the state inside it (Φ < 0 beyond
-    round-off) or on it still moving in: the scene's jump law contradicts its surface."""
+    """A jump left the state inside an `impenetrable` surface piece (Φ < 0 beyond
+    round-off) or on it still moving in, its own or another's: the scene's jump law
+    contradicts its surfaces."""
     BAD_START = 7
     """`x0` lies strictly inside an `impenetrable` surface piece (Φ < 0 beyond round-off,
     inside its `where`), or on it moving in across it (the first flight would start
@@ -60,7 +61,7 @@ _MESSAGES = {
     Status.MAX_STEPS: "max_steps solver steps taken before t1",
     Status.NONFINITE: "non-finite state (NaN/inf) from the vector field, a jump or input",
     Status.STEP_SIZE_UNDERFLOW: "step size fell below the resolution of t",
-    Status.BAD_JUMP: "a jump on an impenetrable surface left the state inside it or moving in",
+    Status.BAD_JUMP: "a jump left the state inside an impenetrable surface or moving into it",
     Status.BAD_START: "x0 lies inside an impenetrable surface (Φ < 0 beyond round-off) or "
     "on it moving in",
     Status.FIELD_DISCONTINUITY: "the vector field jumps at an event surface (sign(·) on the "
