@@ -154,21 +154,25 @@ class LoopContext(eqx.Module):
         as_mask = lambda v: jnp.array(v, dtype=bool).reshape((self.m,))  # noqa: E731
         return as_mask(restart), as_mask(stuck), as_mask(pushed)
 
-    def start_on_impenetrable(self, t, x, args_, x_scale):
-        """At a start x, over the impenetrable pieces: `(inside, resting)`.
+    def impenetrable_contact(self, t, s, t_hi, t_lo, x, args_, x_scale, step_ulps=None):
+        """State x at time t (local time s of the flight from t_hi + t_lo), over the
+        impenetrable pieces: `(inside, resting)`.
 
         `inside`: x strictly inside one (beyond its contact floor), or on it and moving in
-        across it (ġ < 0, not tangential): either way the first flight starts inside
-        (the ball on the floor moving down fell through it with SUCCESS). `resting`: on
-        one at rest, pushed in (tangential, g̈ < 0): sticking from the start, as after a
-        tangential restart (`contact_tests`)."""
+        across it (ġ < 0, not tangential): the next flight would start inside. At a start
+        that is a bad start (the ball on the floor moving down fell through it with
+        SUCCESS); after a landing's jumps, a bad jump (a wall's jump that put the state
+        under an impenetrable floor ran on with SUCCESS). `resting`: on one at rest,
+        pushed in (tangential, g̈ < 0): sticking, as after a tangential restart
+        (`contact_tests`). `step_ulps`: the landing step's term of the floor."""
         inside_any = resting_any = jnp.array(False)
         for piece in self.pieces:
             if piece.check_jump_side:
+                g, gd, gdd = self.slopes_at(piece, 1, s, x, t_hi, t_lo, args_)
                 floor = piece.floor(t, x, args_, x_scale)
+                if step_ulps is not None:
+                    floor = floor + step_ulps * jnp.abs(jax.lax.stop_gradient(gd))
                 in_piece, _ = piece.inside(t, x, args_, self.state_tol)
-                g, gd, gdd = self.slopes_at(piece, 1, jnp.zeros_like(t), x, t,
-                                            jnp.zeros_like(t), args_)
                 on = jnp.abs(g) <= floor
                 tangential = is_tangential(gd, gdd, floor)
                 entering = on & (gd < 0) & ~tangential

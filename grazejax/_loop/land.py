@@ -225,30 +225,12 @@ def _apply_jumps(ctx: LoopContext, c: LoopState, lands, s_event, t_event, y_even
             count = count + apply
             applied_any = applied_any | apply
             applied[i] = applied[i] | apply
-    bad_side = bad_side | (applied_any & _enters_impenetrable(ctx, c, s_event, t_event, x,
-                                                               flight_scale, step_ulps))
+    # A jump that contradicts *another* impenetrable surface than its own (its own is
+    # tested as it is applied): the state after all of the landing's jumps.
+    enters, _ = ctx.impenetrable_contact(t_event, s_event, c.t_hi, c.t_lo, x, c.args,
+                                         jnp.maximum(flight_scale, jnp.abs(x)), step_ulps)
+    bad_side = bad_side | (applied_any & enters)
     return x, count, applied_any, bad_side, rows, applied
-
-
-def _enters_impenetrable(ctx: LoopContext, c: LoopState, s_event, t_event, x, flight_scale,
-                         step_ulps):
-    """Whether the state after all of a landing's jumps is inside an impenetrable piece
-    (beyond its floor), or on one moving in across it: a jump law that contradicts *another*
-    surface than its own (a jump on a wall that put the state under an impenetrable floor
-    ran on with SUCCESS, below the floor). Its own surface is tested as it is applied."""
-    args_, t_hi, t_lo = c.args, c.t_hi, c.t_lo
-    x_scale = jnp.maximum(flight_scale, jnp.abs(x))
-    enters = jnp.array(False)
-    for piece in ctx.pieces:
-        if piece.check_jump_side:
-            g, gd, gdd = ctx.slopes_at(piece, 1, s_event, x, t_hi, t_lo, args_)
-            floor = piece.floor(t_event, x, args_, x_scale) + step_ulps * jnp.abs(
-                jax.lax.stop_gradient(gd)
-            )
-            in_piece, _ = piece.inside(t_event, x, args_, ctx.state_tol)
-            moving_in = (gd < 0) & ~is_tangential(gd, gdd, floor)
-            enters = enters | (in_piece & ((g < -floor) | ((g <= floor) & moving_in)))
-    return enters
 
 
 def _after_landing(ctx: LoopContext, c: LoopState, lands, s_event, t_event, t_event_hi,

@@ -162,7 +162,8 @@ def init(ctx: LoopContext, x0, args) -> LoopState:
     # ZENO at t0 if on two surfaces). With ZenoStop: ZENO at t0 on an impenetrable surface
     # (as after a tangential restart); on another the flight simply starts, into Φ < 0
     # (the paper's setting: Φ < 0 is not forbidden, only met from above).
-    inside0, resting0 = ctx.start_on_impenetrable(t0, x0, args, x0_scale)
+    inside0, resting0 = ctx.impenetrable_contact(t0, jnp.zeros_like(t0), t0, jnp.zeros_like(t0),
+                                                 x0, args, x0_scale)
     status0 = jnp.where(inside0, int(Status.BAD_START), int(Status.SUCCESS))
     if ctx.check_field_jumps:
         # A start on a surface is a restart like any other: the first flight's first stage
