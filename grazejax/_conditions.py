@@ -510,8 +510,7 @@ def _check_surface(scene, i, ts, xs, args, box, delta, scale, rtol):
     c2, finite, singular, det = _c2(piece)
     c4, flat_rate = _c4(piece)
     return [_c1(piece), c2, c4, _c5(piece, finite, singular, det),
-            *_c3_a1(scene, i, piece.name, piece.tx, piece.ev, piece.interior, piece.pairs,
-                    flat_rate, args, scale),
+            *_c3_a1(piece, flat_rate),
             *_c6_c7(piece)]
 
 
@@ -728,7 +727,7 @@ def _c6_c7(p: _Piece) -> list[ConditionResult]:
     )]
 
 
-def _c3_a1(scene, i, name, tx, ev, interior, pairs, flat_rate, args, scale):
+def _c3_a1(p: _Piece, flat_rate):
     """(C3) and (A1) from the samples of the piece (no flights).
 
     (C3): an interior sample x of Γ_i that also lies on Γ̃_i = J_i(Γ_i) — J⁻¹(x) exists
@@ -739,7 +738,8 @@ def _c3_a1(scene, i, name, tx, ev, interior, pairs, flat_rate, args, scale):
     isolated points: two neighbouring samples that are both tangential mean a continuum
     of grazing points (a violation); isolated sign changes of the rate do not.
     """
-    width = tx.shape[1]
+    scene, i, name, tx, width = p.scene, p.i, p.name, p.tx, p.width
+    interior, pairs, args, scale = p.interior, p.pairs, p.args, p.scale
     image_gap, on_image, solved = (np.asarray(v) for v in _image_gaps(
         scene, i, jnp.asarray(tx[:, 0]), jnp.asarray(tx[:, 1:]), args, scale))
     both = interior & on_image
