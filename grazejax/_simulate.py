@@ -147,7 +147,9 @@ def simulate(
       `Status.FIELD_DISCONTINUITY` if it jumps there (a field written with `sign(·)` on the
       event surface, whose side after the event is decided by round-off; outside
       `jit`/`vmap` a `ValueError` that names the fix: modes, [`grazejax.PiecewiseScene`][]).
-      Seven evaluations of f per event, none differentiated; `False` compiles it out.
+      Seven evaluations of f per event, none differentiated; `False` compiles it out, and
+      so does a field that cannot jump (every operation on the state in its jaxpr is
+      continuous: no `sign`, comparison, or `where`/`cond`/index on x).
     - `throw`: raise if the run does not end with `SUCCESS`, `MAX_IMPACTS` or `ZENO`.
       Outside `jit`: a [`grazejax.SimulationError`][] that names the status and the fix,
       with the Solution as `error.solution`. Inside `jit`/`vmap`: a runtime error
@@ -298,7 +300,7 @@ def prepare(scene, x0, t0, t1, args, *, saveat, direction, allow_float32, max_im
         direction=direction, allow_float32=allow_float32, saveat=saveat,
     )
     program = build_program(
-        scene, checked, max_impacts=max_impacts, max_steps=max_steps, **loop_options
+        scene, checked, max_impacts=max_impacts, max_steps=max_steps, args=args, **loop_options
     )
     return checked, program
 

@@ -43,6 +43,14 @@ not seen; they also cost no more than round-off.
 The probe costs seven evaluations of f per landing (none differentiated: its inputs are
 `stop_gradient`-ed, and it only returns a bool), only in the landing phase, and gives no
 verdict where v = 0 or where a probe is not finite.
+
+**Fields that cannot jump** are not probed (`continuous_in_state`): with t and args fixed,
+as in the probe, a field whose every operation on x is a continuous function of its
+operands is continuous in x, and the probe could only ever answer "no". The run reads
+this from the field's jaxpr when it builds its loop; any doubt keeps the probe. ex1dof:
+20 of 212 fusions and ~8% of the compile time of `jit(simulate)` (issue 14: what a run
+does not use costs nothing). A continuous field with a steep Hölder singularity at the
+surface (|x|^0.1) is no longer refused as a jump.
 """
 
 import jax
@@ -94,3 +102,88 @@ def field_probe(vector_field, t, x, args, x_scale):
     sizes = jnp.where(moving, norm(d1), 0.0)
     growths = norm(d2 - d1) / jnp.where(sizes > 0, sizes, 1.0)
     return sizes, _NOISE_FACTOR * eps * scale, growths
+
+
+# ---- which fields cannot jump: read from their jaxpr ----------------------------------
+
+# Primitives whose outputs are continuous functions of every input (where defined: a
+# pole such as 1/x is not a jump the probe would report either). A field built from
+# these alone, with t and args fixed, is continuous in x, so the probe cannot find a
+# jump and is left out of the program. `atan2` (its branch cut), `rem`, `sign`, `floor`,
+# comparisons, `sort` (argsort: its permuted operands jump) and the rest are not here.
+_CONTINUOUS = frozenset({
+    "abs", "acos", "acosh", "add", "asin", "asinh", "atan", "atanh", "broadcast_in_dim",
+    "cbrt", "complex", "concatenate", "conj", "copy", "cos", "cosh", "cumlogsumexp",
+    "cummax", "cummin", "cumprod", "cumsum", "digamma", "div", "dot_general", "erf",
+    "erf_inv", "erfc", "exp", "exp2", "expm1", "imag", "integer_pow", "lgamma", "log",
+    "log1p", "logistic", "max", "min", "mul", "neg", "pad", "pow", "real", "reduce_max",
+    "reduce_min", "reduce_prod", "reduce_sum", "reshape", "rev", "rsqrt", "sin", "sinh",
+    "slice", "sqrt", "square", "squeeze", "stop_gradient", "sub", "tan", "tanh",
+    "transpose", "clamp", "expand_dims", "split", "stack", "unstack", "tile",
+})
+# Primitives that move (or add, multiply, take the min of) data: continuous in their data
+# operands, discontinuous in their index operands (these positions), which must not
+# depend on x.
+_INDEXED = {"dynamic_slice": slice(1, None), "gather": slice(1, 2),
+            "dynamic_update_slice": slice(2, None), "scatter": slice(1, 2),
+            "scatter-add": slice(1, 2), "scatter-sub": slice(1, 2), "scatter-mul": slice(1, 2),
+            "scatter-min": slice(1, 2), "scatter-max": slice(1, 2)}
+# Calls whose one sub-jaxpr takes the call's operands in order.
+_CALLS = {"pjit": "jaxpr", "jit": "jaxpr", "closed_call": "call_jaxpr",
+          "core_call": "call_jaxpr", "custom_jvp_call": "call_jaxpr",
+          "custom_vjp_call": "call_jaxpr", "custom_vjp_call_jaxpr": "fun_jaxpr",
+          "checkpoint": "jaxpr", "remat2": "jaxpr"}
+
+
+def continuous_in_state(vector_field, t, x, args) -> bool:
+    """Whether `vector_field(t, ·, args)` is, by construction, a continuous function of
+    the state: every operation that depends on x is in a list of continuous primitives
+    (selects, conditionals and indices that depend on x are not). True only where that
+    holds for the traced program; any doubt (an unknown primitive, a `while` on x, a
+    field that does not trace) is False, and the landing keeps its probe."""
+    try:
+        closed = jax.make_jaxpr(lambda y: vector_field(t, y, args))(x)
+    except Exception:  # noqa: BLE001 - the run itself reports a field that fails
+        return False
+    return _continuous(closed.jaxpr, [True] * len(closed.jaxpr.invars)) is not None
+
+
+def _continuous(jaxpr, tainted_in):
+    """Which outputs depend on the inputs marked in `tainted_in`, if every operation on
+    them is continuous; None if one is not."""
+    tainted = {v for v, mark in zip(jaxpr.invars, tainted_in, strict=True) if mark}
+    depends = lambda v: not isinstance(v, jax.extend.core.Literal) and v in tainted  # noqa: E731
+    for eqn in jaxpr.eqns:
+        marks = [depends(v) for v in eqn.invars]
+        if not any(marks):
+            continue
+        name = eqn.primitive.name
+        if name in _CONTINUOUS:
+            outs = [True] * len(eqn.outvars)
+        elif name == "select_n" and not marks[0]:  # the choice does not depend on x
+            outs = [True]
+        elif name in _INDEXED and not any(marks[_INDEXED[name]]):
+            outs = [True] * len(eqn.outvars)
+        elif name in _CALLS and _CALLS[name] in eqn.params:
+            outs = _continuous(_open(eqn.params[_CALLS[name]]), marks)
+        elif name == "cond" and not marks[0]:
+            branches = [_continuous(_open(b), marks[1:]) for b in eqn.params["branches"]]
+            outs = None if None in branches else [any(o) for o in zip(*branches, strict=True)]
+        elif name == "convert_element_type" and _inexact(eqn.invars[0]) and _inexact(
+            eqn.outvars[0]
+        ):
+            outs = [True]
+        else:
+            return None
+        if outs is None:
+            return None
+        tainted.update(v for v, mark in zip(eqn.outvars, outs, strict=True) if mark)
+    return [depends(v) for v in jaxpr.outvars]
+
+
+def _open(jaxpr):
+    return getattr(jaxpr, "jaxpr", jaxpr)
+
+
+def _inexact(var) -> bool:
+    return jnp.issubdtype(var.aval.dtype, jnp.inexact)
