@@ -173,6 +173,8 @@ _CAN_JUMP = [
     lambda t, x, a: jnp.stack([x[1], jnp.arctan2(x[1], x[0])]),  # its branch cut
     lambda t, x, a: x * x[0].astype(int),
     lambda t, x, a: jnp.stack([x[1], jnp.floor(x[0])]),
+    lambda t, x, a: x.astype(jnp.float32).astype(x.dtype),  # rounds: steps of f32 ulps
+    lambda t, x, a: jnp.sin(x.astype(jnp.float32)).astype(x.dtype) - x,
     lambda t, x, a: jax.lax.while_loop(lambda y: y[0] < 1.0, lambda y: y + 1.0, x),
 ]
 

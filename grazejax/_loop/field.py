@@ -169,9 +169,8 @@ def _continuous(jaxpr, tainted_in):
         elif name == "cond" and not marks[0]:
             branches = [_continuous(_open(b), marks[1:]) for b in eqn.params["branches"]]
             outs = None if None in branches else [any(o) for o in zip(*branches, strict=True)]
-        elif name == "convert_element_type" and _inexact(eqn.invars[0]) and _inexact(
-            eqn.outvars[0]
-        ):
+        elif name == "convert_element_type" and _widening(eqn.invars[0], eqn.outvars[0]):
+            # (a narrowing one rounds: steps of an ulp of the narrower type)
             outs = [True]
         else:
             return None
@@ -185,5 +184,8 @@ def _open(jaxpr):
     return getattr(jaxpr, "jaxpr", jaxpr)
 
 
-def _inexact(var) -> bool:
-    return jnp.issubdtype(var.aval.dtype, jnp.inexact)
+def _widening(source, target) -> bool:
+    """A float-to-float conversion that loses no bits (f32 → f64, or the same type)."""
+    a, b = source.aval.dtype, target.aval.dtype
+    floats = jnp.issubdtype(a, jnp.inexact) and jnp.issubdtype(b, jnp.inexact)
+    return floats and jnp.finfo(b).nmant >= jnp.finfo(a).nmant
