@@ -35,14 +35,21 @@ def _plain(x, k, need):
 
 
 @pytest.mark.parametrize("lanes", [1, 8, 9, 130])
-@pytest.mark.parametrize("pattern", ["none", "all", "random", "first", "last"])
+@pytest.mark.parametrize(
+    "pattern", ["none", "all", "random", "first", "last", "block", "tail", "alternate"]
+)
 def test_batch_equals_loop(lanes, pattern):
+    # (neighbouring lanes are sliced, others gathered: "block" and "tail" mix both, with a
+    # last round padded past the batch)
     rng = np.random.default_rng(lanes)
     x = jnp.asarray(rng.uniform(0.5, 2.0, lanes))
+    index = np.arange(lanes)
     need = {
         "none": np.zeros(lanes, bool), "all": np.ones(lanes, bool),
         "random": rng.uniform(size=lanes) < 0.2,
-        "first": np.arange(lanes) == 0, "last": np.arange(lanes) == lanes - 1,
+        "first": index == 0, "last": index == lanes - 1,
+        "block": (index >= lanes // 5) & (index < lanes - lanes // 3),
+        "tail": index >= lanes - (lanes * 2) // 5, "alternate": index % 2 == 0,
     }[pattern]
     batched = jax.jit(jax.vmap(lambda x, n: per_lane(_phase, n, (x, 1.7), _nothing)))(
         x, jnp.asarray(need)
