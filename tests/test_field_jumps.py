@@ -12,6 +12,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 import grazejax as gj
 from grazejax import examples as ex
@@ -333,3 +335,44 @@ def test_no_false_alarms_on_the_example_scenes(monkeypatch):
         print(f"  {name:28} {[s.name for s in status]}  events {n.tolist()}")
     assert lanes >= 100 and events >= 1000  # the campaign exercises the check
     assert alarms == []
+
+
+# Random fields: a static verdict of "continuous" is never contradicted by the probe, and
+# one discontinuous operation anywhere in the expression keeps the probe.
+
+_UNARY = [jnp.sin, jnp.tanh, lambda u: jnp.exp(-(u**2)), jnp.abs,
+          lambda u: jnp.maximum(u, 0.0), lambda u: u**2, lambda u: jnp.sqrt(1.0 + u**2)]
+_BINARY = [jnp.add, jnp.multiply, jnp.maximum, jnp.minimum]
+_JUMPS = [jnp.sign, jnp.floor, jnp.round, lambda u: jnp.where(u > 0.1, u, -u),
+          lambda u: jnp.heaviside(u, 0.5)]
+
+
+def _random_field(draw_ops, jump_at=None):
+    """x'' built from `draw_ops`, a list of (kind, index) choices; the operation number
+    `jump_at` (if any) is replaced by a discontinuous one."""
+
+    def field(t, x, a):
+        stack = [x[0], x[1], a * x[0], jnp.cos(t) + 0.0 * x[1]]
+        for k, (kind, i) in enumerate(draw_ops):
+            if k == jump_at:
+                stack.append(_JUMPS[i % len(_JUMPS)](stack[-1]))
+            elif kind == "unary":
+                stack.append(_UNARY[i % len(_UNARY)](stack[-1]))
+            else:
+                stack.append(_BINARY[i % len(_BINARY)](stack[-1], stack[-(2 + i % 3)]))
+        return jnp.stack([x[1], stack[-1]])
+
+    return field
+
+
+@settings(max_examples=40, deadline=None, derandomize=True)
+@given(ops=st.lists(st.tuples(st.sampled_from(["unary", "binary"]), st.integers(0, 20)),
+                    min_size=1, max_size=8),
+       where=st.integers(0, 7), x=st.tuples(st.floats(-2, 2), st.floats(-2, 2)))
+def test_random_fields_static_verdict_agrees_with_the_probe(ops, where, x):
+    x = jnp.asarray(x, float)
+    field = _random_field(ops)
+    assert continuous_in_state(field, 0.3, x, 1.2)
+    # The probe never calls a continuous field a jump (these are C⁰, with kinks at most).
+    assert not bool(field_jumps(field, 0.3, x, 1.2, jnp.ones_like(x)))
+    assert not continuous_in_state(_random_field(ops, jump_at=where % len(ops)), 0.3, x, 1.2)
