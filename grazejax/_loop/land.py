@@ -97,6 +97,12 @@ def _land(ctx: LoopContext, c: LoopState, y_star, sa, s_star):
     restart, stuck_each, pushed_in = ctx.contact_tests(
         t_event_hi, t_event_lo, x_post, args_, x_scale, step_ulps
     )
+    # A jump that contradicts *another* impenetrable surface than its own (its own is
+    # tested as it is applied): the state after all of the landing's jumps, in the same
+    # clock and scale as the tests above, so that the two share Φ, Φ̇, Φ̈.
+    enters, _ = ctx.impenetrable_contact(t_event, jnp.zeros_like(t_event), t_event_hi,
+                                         t_event_lo, x_post, args_, x_scale, step_ulps)
+    bad_side = bad_side | (applied_any & enters)
     released = jnp.zeros((ctx.m,), bool)
     if ctx.sticky:
         restart, stuck_each, released = keep_sliding(
@@ -225,11 +231,6 @@ def _apply_jumps(ctx: LoopContext, c: LoopState, lands, s_event, t_event, y_even
             count = count + apply
             applied_any = applied_any | apply
             applied[i] = applied[i] | apply
-    # A jump that contradicts *another* impenetrable surface than its own (its own is
-    # tested as it is applied): the state after all of the landing's jumps.
-    enters, _ = ctx.impenetrable_contact(t_event, s_event, c.t_hi, c.t_lo, x, c.args,
-                                         jnp.maximum(flight_scale, jnp.abs(x)), step_ulps)
-    bad_side = bad_side | (applied_any & enters)
     return x, count, applied_any, bad_side, rows, applied
 
 
