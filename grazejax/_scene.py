@@ -29,8 +29,9 @@ class Surface(eqx.Module):
     - `name`: optional label used in reports and plots.
     - `impenetrable`: if True, a jump (this surface's, or any other's) must leave the
       state on the free side (Φ ≥ 0 to within round-off, and not moving into Φ < 0);
-      otherwise the run ends with `Status.BAD_JUMP`. Off by default because the paper's examples jump *into* Φ < 0
-      on purpose (ex1dof, exnonaxial); turn it on for walls and floors.
+      otherwise the run ends with `Status.BAD_JUMP`. Off by default because the paper's
+      examples jump *into* Φ < 0 on purpose (ex1dof, exnonaxial); turn it on for walls
+      and floors.
 
     **Event semantics** (docs/semantics.md): an impact happens when the trajectory *reaches*
     Φ_i = 0 while Φ_i decreases, or touches it tangentially (grazing, γ), at a point where

@@ -118,8 +118,8 @@ _CONTINUOUS = frozenset({
     "erf_inv", "erfc", "exp", "exp2", "expm1", "imag", "integer_pow", "lgamma", "log",
     "log1p", "logistic", "max", "min", "mul", "neg", "pad", "pow", "real", "reduce_max",
     "reduce_min", "reduce_prod", "reduce_sum", "reshape", "rev", "rsqrt", "sin", "sinh",
-    "slice", "sqrt", "square", "squeeze", "stop_gradient", "sub", "tan", "tanh",
-    "transpose", "clamp", "expand_dims", "split", "stack", "unstack", "tile",
+    "slice", "sqrt", "square", "squeeze", "sub", "tan", "tanh", "transpose", "clamp",
+    "split", "stack", "unstack", "tile",
 })
 # Primitives that move (or add, multiply, take the min of) data: continuous in their data
 # operands, discontinuous in their index operands (these positions), which must not
