@@ -27,9 +27,10 @@ from .state import (
 from .step import Step
 
 
-def land_if_due(ctx: LoopContext, c: LoopState, step: Step):
+def land_if_due(ctx: LoopContext, c: LoopState, step: Step, landing: bool | None = None):
     """The state after a landing step (buffers included), the event time and the local time
-    up to which the step's dense output is saved; `c` unchanged if no lane lands."""
+    up to which the step's dense output is saved; `c` unchanged if no lane lands.
+    `landing`: whether some lane lands (`program.lands`), where the caller knows it."""
     # The branch returns only small values: the log and save buffers are written below,
     # outside the cond, one row at a time (threading them through the cond made every
     # iteration copy them: cost grew with max_impacts and len(saveat)).
@@ -42,8 +43,10 @@ def land_if_due(ctx: LoopContext, c: LoopState, step: Step):
 
     lands = c.landing & ~c.done
     operands = (without_buffers(c), step.y1, step.sa, step.sb)
-    if ctx.m == 0:
+    if ctx.m == 0 or landing is False:
         landed_small, rows, t_event, s_save = no_land(operands)
+    elif landing:
+        landed_small, rows, t_event, s_save = land(operands)
     elif ctx.kinds.outer == "lax":
         # Only the landing lanes pay for the landing under vmap (`compact.py`; a
         # differentiated call runs it uncompacted). Reverse-mode loops keep the plain

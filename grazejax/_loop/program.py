@@ -5,6 +5,7 @@ from collections.abc import Callable
 
 import diffrax
 import equinox as eqx
+import equinox.internal as eqxi
 import jax
 import jax.lax as lax
 import jax.numpy as jnp
@@ -41,6 +42,10 @@ class Program(eqx.Module):
     # `step` for a state where no lane slides: no sliding field, no search for the end of
     # sliding (`step` itself without `ZenoStick`). A landing may still start sliding.
     free_step: Callable = eqx.field(static=True)
+    # state -> bool: the next step lands (for some lane: unbatched); `step` and
+    # `deciding_step` take `landing=True` / `False` for a step known to land or not (its
+    # linearisation then holds only that branch's residuals: `reverse.py`).
+    lands: Callable = eqx.field(static=True)
     running: Callable = eqx.field(static=True)  # state -> bool: not finished, not out of steps
     finish: Callable = eqx.field(static=True)  # state -> Solution
     log_rows_per_landing: int = eqx.field(static=True)  # impact-log rows one landing writes
@@ -67,6 +72,7 @@ def build_program(
         init=functools.partial(init, ctx), step=step_,
         deciding_step=functools.partial(deciding_step, ctx),
         free_step=functools.partial(step, ctx, slides=False) if ctx.sticky else step_,
+        lands=functools.partial(lands, ctx),
         running=functools.partial(running, ctx), finish=functools.partial(finish, ctx),
         log_rows_per_landing=ctx.log_rows_per_landing,
     )
@@ -232,22 +238,38 @@ def init(ctx: LoopContext, x0, args) -> LoopState:
 # --------------------------------------------------------------------------------------
 
 
-def step(ctx: LoopContext, c_in: LoopState, slides: bool = True) -> LoopState:
-    return deciding_step(ctx, c_in, None, slides)[0]
+def step(ctx: LoopContext, c_in: LoopState, slides: bool = True,
+         landing: bool | None = None) -> LoopState:
+    return deciding_step(ctx, c_in, None, slides, landing)[0]
 
 
-def deciding_step(ctx: LoopContext, c_in: LoopState, forced, slides: bool = True):
+def deciding_step(ctx: LoopContext, c_in: LoopState, forced, slides: bool = True,
+                  landing: bool | None = None):
     """`(step(c_in), decisions)`: the step with the decisions `forced` (`(h_next, keep)`,
-    NaN step size: none) replayed, and the decisions it took (see `replay.py`)."""
+    NaN step size: none) replayed, and the decisions it took (see `replay.py`).
+
+    `landing`: None (the step finds out), or whether `lands(c_in)` is known to hold, for
+    reverse mode's stored loop (`reverse.py`), which linearises the two kinds of step
+    apart."""
     # A lane out of steps is frozen like a finished one (see `simulate`'s `cond`), but
     # keeps done = False so that it reports MAX_STEPS.
-    out_of_steps = ~c_in.done & (c_in.num_steps >= ctx.max_steps)
+    out_of_steps = _out_of_steps(ctx, c_in)
     c = eqx.tree_at(lambda z: z.done, c_in, c_in.done | out_of_steps)
     taken = take_step(ctx, c, slides, forced)
     found = detect(ctx, c, taken, slides)
-    landed, _, s_save = land_if_due(ctx, c, taken)
+    landed, _, s_save = land_if_due(ctx, c, taken, landing)
     new = _next_state(ctx, c, taken, found, landed, s_save)
     return eqx.tree_at(lambda z: z.done, new, new.done & ~out_of_steps), (taken.h_next, taken.keep)
+
+
+def lands(ctx: LoopContext, c: LoopState):
+    """Whether the step from `c` lands some lane (unbatched): the landing branch of
+    `land_if_due` runs."""
+    return eqxi.unvmap_any(c.landing & ~(c.done | _out_of_steps(ctx, c)))
+
+
+def _out_of_steps(ctx: LoopContext, c: LoopState):
+    return ~c.done & (c.num_steps >= ctx.max_steps)
 
 
 def _next_state(ctx: LoopContext, c: LoopState, taken: Step, found: Detection,

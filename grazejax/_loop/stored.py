@@ -44,6 +44,7 @@ def stored_while_loop(
     ends_block: Callable[[Any], Any] | None = None,
     block: int = 8,
     replay=None,
+    apart=None,
 ):
     """`while cond_fun(small): small = step(small)`, at most `max_steps` steps; with
     `buffers = write(small, buffers)` after every step for which `ends_block(small)` and
@@ -58,6 +59,13 @@ def stored_while_loop(
     `(small, buffers, decisions)`, `decisions` with the structure of `replay`. A caller
     that runs the loop again (reverse mode's recomputation) passes the first run's
     decisions, so that both runs take the same steps (`replay.py`).
+
+    With `apart = (is_apart, apart_step, rows)`, a step from a state where `is_apart(small)`
+    is `apart_step(small)` (the same signature as `step`) and its residuals are stored
+    apart from the other steps', at most `rows` of them: the impact loop's landings, whose
+    branch would otherwise add its residuals to every step's row (forced impact
+    oscillator: 864 bytes a step, 566 without the landing's). A step ends its block after
+    it; the other steps are `step(small)` for states that are not apart.
 
     The impact loop's contract: `cond_fun` and `ends_block` are unbatched
     (`eqxi.unvmap_any`), as `step` freezes finished lanes itself and every lane's residuals
@@ -80,9 +88,18 @@ def stored_while_loop(
     step_closed, step_consts = jax.closure_convert(step, small, forced)
     write_closed, write_consts = jax.closure_convert(write, small, buffers)
     fns = _Fns(cond_closed, ends_closed, step_closed, write_closed, max_steps, block, deciding)
+    apart_tests, apart_consts = (), ()
+    if apart is not None:
+        is_apart, apart_step, fns.apart_rows = apart
+        if not deciding:
+            plain_apart = apart_step
+            apart_step = lambda small, forced: (plain_apart(small), ())  # noqa: E731
+        fns.is_apart, apart_tests = jax.closure_convert(is_apart, small)
+        fns.apart_step, apart_consts = jax.closure_convert(apart_step, small, forced)
     small, buffers, decisions = _stored(
         fns, small, buffers, jax.lax.stop_gradient(replay),
-        (tuple(cond_consts), tuple(ends_consts)), tuple(step_consts), tuple(write_consts))
+        (tuple(cond_consts), tuple(ends_consts), tuple(apart_tests)), tuple(step_consts),
+        tuple(write_consts), tuple(apart_consts))
     return (small, buffers, decisions) if deciding else (small, buffers)
 
 
@@ -102,7 +119,21 @@ class _Fns:
     def __init__(self, cond, ends, step, write, max_steps, block, deciding):
         self.cond, self.ends, self.step, self.write = cond, ends, step, write
         self.max_steps, self.block, self.deciding = max_steps, block, deciding
-        self.step_layout = self.write_layout = None
+        self.step_layout = self.write_layout = self.apart_layout = None
+        self.is_apart = self.apart_step = None  # (see `stored_while_loop`'s `apart`)
+        self.apart_rows = 0
+
+    def apart(self, small, tests):
+        """Whether the step from `small` is stored apart (never without `apart`)."""
+        return _bool(self.is_apart(small, *tests[2]) if self.is_apart else False)
+
+    def any_step(self, small, forced, step_consts, apart_consts, tests):
+        """The step from `small`, whichever kind it is (the loop without derivatives)."""
+        if self.is_apart is None:
+            return self.step(small, forced, *step_consts)
+        return lax.cond(self.apart(small, tests),
+                        lambda: self.apart_step(small, forced, *apart_consts),
+                        lambda: self.step(small, forced, *step_consts))
 
 
 class _Layout:
@@ -191,7 +222,7 @@ def _add(a, b):
 
 
 @functools.partial(jax.custom_vjp, nondiff_argnums=(0,))
-def _stored(fns, small, buffers, replay, tests, step_consts, write_consts):
+def _stored(fns, small, buffers, replay, tests, step_consts, write_consts, apart_consts):
     """The loop without derivatives: steps until `ends_block`, then `write`; with
     decisions, also at most as many steps at a time as the inner loop's carry can stage
     decisions of within XLA:CPU's sequential threshold (64 for float64 step sizes),
@@ -208,7 +239,7 @@ def _stored(fns, small, buffers, replay, tests, step_consts, write_consts):
 
     def inner_step(state):
         j, k, small, (forced, staged) = state
-        small, decided = fns.step(small, _row(forced, j), *step_consts)
+        small, decided = fns.any_step(small, _row(forced, j), step_consts, apart_consts, tests)
         return j + 1, k + 1, small, (forced, _set_row(staged, j, decided))
 
     def more(state):
@@ -272,11 +303,12 @@ def _bool(x):
     return jnp.asarray(x, dtype=bool)
 
 
-def _step_linearised(fns, small, forced, step_consts):
+def _step_linearised(fns, small, forced, step_consts, step=None):
     """`(step's outputs, (its pullback's leaves, treedef))`, the replayed decisions held
-    fixed (they carry no derivative)."""
+    fixed (they carry no derivative); `step` defaults to `fns.step`."""
+    step = fns.step if step is None else step
     out, pullback, decided = jax.vjp(
-        lambda s, *consts: fns.step(s, forced, *consts), small, *step_consts, has_aux=True)
+        lambda s, *consts: step(s, forced, *consts), small, *step_consts, has_aux=True)
     return (out, decided), jax.tree.flatten(pullback)
 
 
@@ -285,8 +317,9 @@ def _write_linearised(fns, small, buffers, write_consts):
     return out, jax.tree.flatten(pullback)
 
 
-def _find_layouts(fns, small, buffers, replay, step_consts, write_consts):
-    """Trace one step and one write (`eval_shape` runs nothing) for the residuals' layout."""
+def _find_layouts(fns, small, buffers, replay, step_consts, write_consts, apart_consts):
+    """Trace one step of each kind and one write (`eval_shape` runs nothing) for the
+    residuals' layouts."""
 
     def trace(small, buffers):
         (small, _), (leaves, treedef) = _step_linearised(fns, small, _row(replay, 0),
@@ -298,20 +331,25 @@ def _find_layouts(fns, small, buffers, replay, step_consts, write_consts):
         fns.step_layout = _Layout(leaves, treedef, fns.block if small_buffers else None)
         _, (leaves, treedef) = _write_linearised(fns, small, buffers, write_consts)
         fns.write_layout = _Layout(leaves, treedef, 1)
+        if fns.apart_step is not None:
+            _, (leaves, treedef) = _step_linearised(fns, small, _row(replay, 0), apart_consts,
+                                                    fns.apart_step)
+            fns.apart_layout = _Layout(leaves, treedef, None)
         return 0
 
     jax.eval_shape(trace, small, buffers)
 
 
-def _fwd(fns, small, buffers, replay, tests, step_consts, write_consts):
-    _find_layouts(fns, small, buffers, replay, step_consts, write_consts)
+def _fwd(fns, small, buffers, replay, tests, step_consts, write_consts, apart_consts):
+    _find_layouts(fns, small, buffers, replay, step_consts, write_consts, apart_consts)
     step_layout, write_layout, block = fns.step_layout, fns.write_layout, fns.block
     padded = _spare_rows(replay, block)
 
     def inner_more(state):
         j, k, small, *_ = state
         first_or_free = (j == 0) | ~_bool(fns.ends(small, *tests[1]))
-        return (j < block) & (k < fns.max_steps) & first_or_free & fns.cond(small, *tests[0])
+        return ((j < block) & (k < fns.max_steps) & first_or_free & fns.cond(small, *tests[0])
+                & ~fns.apart(small, tests))
 
     def inner_step(state):
         j, k, small, staging, (forced, staged) = state
@@ -326,38 +364,78 @@ def _fwd(fns, small, buffers, replay, tests, step_consts, write_consts):
         return (k < fns.max_steps) & fns.cond(small, *tests[0])
 
     def outer_step(state):
-        b, k, small, buffers, step_stores, write_stores, starts, record = state
+        b, k, small, buffers, step_stores, write_stores, starts, record, apart = state
         rows = (_rows(padded, k, block), _rows(record, k, block))
         j, k_next, small, staging, (_, staged) = lax.while_loop(
             inner_more, inner_step,
             (jnp.asarray(0), k, small, step_layout.stores(block), rows))
         record = _set_rows(record, k, staged)
+        if fns.apart_step is not None:
+            # (not before the write that a block's last step asked for)
+            due = (j == 0) | ~_bool(fns.ends(small, *tests[1]))
+            small, k_next, record, apart = _apart_step(
+                fns, b, k_next, small, due, record, apart, padded, tests, apart_consts)
         buffers, (leaves, _) = _write_linearised(fns, small, buffers, write_consts)
         step_stores = tuple(lax.dynamic_update_slice_in_dim(s, r, k, 0)
                             for s, r in zip(step_stores, staging, strict=True))
         write_stores = tuple(lax.dynamic_update_index_in_dim(s, r, b, 0)
                              for s, r in zip(write_stores, write_layout.pack(leaves), strict=True))
         starts = lax.dynamic_update_index_in_dim(starts, k, b, 0)
-        return b + 1, k_next, small, buffers, step_stores, write_stores, starts, record
+        return b + 1, k_next, small, buffers, step_stores, write_stores, starts, record, apart
 
     # Every block has at least one step: at most `max_steps` blocks. `block` spare rows in
     # the step stores: a block's rows are written whole from its first step's index.
     n_blocks = fns.max_steps
+    index = jnp.asarray(0).dtype
+    # (the steps stored apart: their rows, how many, and each block's: −1 for none)
+    apart = ((fns.apart_layout.stores(fns.apart_rows + 1), jnp.asarray(0),
+              jnp.full((n_blocks,), -1, index)) if fns.apart_step is not None else ())
     init = (jnp.asarray(0), jnp.asarray(0), small, buffers,
             step_layout.stores(fns.max_steps + block),
             write_layout.stores(n_blocks),
-            jnp.zeros((n_blocks + 1,), jnp.asarray(0).dtype), padded)
-    b, k, small_end, buffers_end, step_stores, write_stores, starts, record = lax.while_loop(
-        more, outer_step, init)
+            jnp.zeros((n_blocks + 1,), index), padded, apart)
+    b, k, small_end, buffers_end, step_stores, write_stores, starts, record, apart = \
+        lax.while_loop(more, outer_step, init)
     starts = lax.dynamic_update_index_in_dim(starts, k, b, 0)
-    residuals = (b, starts, step_stores, write_stores, small, buffers, replay, tests,
-                 step_consts, write_consts)
+    residuals = (b, starts, step_stores, write_stores, apart, small, buffers, replay, tests,
+                 step_consts, write_consts, apart_consts)
     return (small_end, buffers_end, _drop_spare(record, fns.max_steps)), residuals
 
 
+def _apart_step(fns, b, k, small, due, record, apart, padded, tests, apart_consts):
+    """After block `b`'s other steps: the step stored apart, if `small` calls for one and
+    it is `due`.
+
+    Its row is written outside the `cond` (a store passed through a branch may be
+    copied): where no step runs, a spare last row is written with zeros. More steps apart
+    than `fns.apart_rows` would overwrite the last row: it is then NaN, and so is the
+    gradient."""
+    stores, count, of_block = apart
+    runs = due & fns.apart(small, tests) & (k < fns.max_steps) & fns.cond(small, *tests[0])
+
+    def run(small):
+        (small, decided), (leaves, _) = _step_linearised(
+            fns, small, _row(padded, k), apart_consts, fns.apart_step)
+        return small, decided, fns.apart_layout.pack(leaves)
+
+    def skip(small):
+        return small, _row(record, k), tuple(jnp.zeros_like(s[0]) for s in stores)
+
+    small, decided, rows = lax.cond(runs, run, skip, small)
+    last = fns.apart_rows - 1
+    overflow = runs & (count > last)
+    rows = tuple(jnp.where(overflow, jnp.nan, r) if _inexact(r) else r for r in rows)
+    at = jnp.where(runs, jnp.minimum(count, last), last + 1)
+    stores = tuple(lax.dynamic_update_index_in_dim(s, r, at, 0)
+                   for s, r in zip(stores, rows, strict=True))
+    of_block = lax.dynamic_update_index_in_dim(of_block, jnp.where(runs, count, -1), b, 0)
+    record = _set_row(record, k, decided)
+    return small, k + runs, record, (stores, count + runs, of_block)
+
+
 def _bwd(fns, residuals, ct):
-    b_end, starts, step_stores, write_stores, small, buffers, replay, tests, step_consts, \
-        write_consts = residuals
+    b_end, starts, step_stores, write_stores, apart, small, buffers, replay, tests, \
+        step_consts, write_consts, apart_consts = residuals
     step_layout, write_layout, block = fns.step_layout, fns.write_layout, fns.block
     ct_small, ct_buffers, _ = ct  # (the decisions carry no derivative)
     # The buffers are written once per row and never read by the loop: the cotangent of a
@@ -375,27 +453,47 @@ def _bwd(fns, residuals, ct):
         d_small, *d_consts = pullback(_with_float0(ct_small, small))
         return j, _float_part(d_small), _add(acc, _float_part(d_consts)), staging
 
+    def apart_back(b, ct_small, acc_apart):
+        """The pullback of block `b`'s step stored apart, if it had one: `(ct, acc, 1)`."""
+        if fns.apart_step is None:
+            return ct_small, acc_apart, 0
+        stores, _, of_block = apart
+        row = of_block[b]
+
+        def back(ct_small, acc_apart):
+            pullback = fns.apart_layout.unpack(tuple(
+                lax.dynamic_index_in_dim(s, row, 0, keepdims=False) for s in stores))
+            d_small, *d_consts = pullback(_with_float0(ct_small, small))
+            return _float_part(d_small), _add(acc_apart, _float_part(d_consts))
+
+        ct_small, acc_apart = lax.cond(row >= 0, back, lambda *a: a, ct_small, acc_apart)
+        return ct_small, acc_apart, (row >= 0).astype(starts.dtype)
+
     def outer_back(state):
-        b, ct_small, acc_step, acc_write = state
+        b, ct_small, acc_step, acc_write, acc_apart = state
         b = b - 1
         start, stop = starts[b], starts[b + 1]
         pullback = write_layout.unpack(tuple(
             lax.dynamic_index_in_dim(s, b, 0, keepdims=False) for s in write_stores))
         d_small, _, *d_consts = pullback(ct_buffers)
         ct_small = _add(ct_small, _float_part(d_small))
+        # (a block's step stored apart came after its other steps)
+        ct_small, acc_apart, ran = apart_back(b, ct_small, acc_apart)
         rows = tuple(lax.dynamic_slice_in_dim(s, start, block, 0) for s in step_stores)
         _, ct_small, acc_step, _ = lax.while_loop(
             lambda s: s[0] > 0, inner_back,
-            (stop - start, ct_small, acc_step, rows))
-        return b, ct_small, acc_step, _add(acc_write, _float_part(d_consts))
+            (stop - start - ran, ct_small, acc_step, rows))
+        return b, ct_small, acc_step, _add(acc_write, _float_part(d_consts)), acc_apart
 
     init = (b_end, _float_part(ct_small), _zeros_float_part(step_consts),
-            _zeros_float_part(write_consts))
-    _, ct_small, acc_step, acc_write = lax.while_loop(lambda s: s[0] > 0, outer_back, init)
+            _zeros_float_part(write_consts), _zeros_float_part(apart_consts))
+    _, ct_small, acc_step, acc_write, acc_apart = lax.while_loop(
+        lambda s: s[0] > 0, outer_back, init)
     zeros = lambda tree: _with_float0(_zeros_float_part(tree), tree)  # noqa: E731
     # The initial buffers are constants of the loop's caller (NaN-filled log rows).
     return (_with_float0(ct_small, small), zeros(buffers), zeros(replay), zeros(tests),
-            _with_float0(acc_step, step_consts), _with_float0(acc_write, write_consts))
+            _with_float0(acc_step, step_consts), _with_float0(acc_write, write_consts),
+            _with_float0(acc_apart, apart_consts))
 
 
 _stored.defvjp(_fwd, _bwd)
