@@ -38,7 +38,9 @@ def two_level_checkpointed(cond, program: "Program", init, bound: int):
     at 10/100/1000 impacts; each step as a nested computation (`_nested`)
     4.7/4.8/5.0x; the chunks as loops that store linearisations (no step of a chunk run
     a third time in the backward pass) 4.53/4.69/4.96x -> 3.97/4.16/4.42x (same process,
-    min of 9), gradients bit-equal. The chunk length mattered little (64 or 2048 steps: within 1%).
+    min of 9), gradients bit-equal; a landing's residuals stored apart
+    (`_landings_apart`) 4.30/4.70/4.76x -> 3.35/3.34/3.42x (another machine, separate
+    processes, min of 7/7/3). The chunk length mattered little (64 or 2048 steps: within 1%).
 
     The backward pass runs each chunk again from its checkpoint: the first pass records
     every step's decisions (a row per step, a write-once buffer) and the re-run replays
@@ -159,7 +161,9 @@ def every_step_stored(cond, program: "Program", init, bound: int):
     landing's rows and writes them to the full log (write-once buffers) after the step
     that staged them. Forced impact oscillator, 1000-row log, one core, min of 9, against
     Equinox's checkpointed loop with a checkpoint per step in the same process:
-    3.56/3.76/3.92x -> 2.94/3.24/3.76x the primal at 10/100/1000 impacts."""
+    3.56/3.76/3.92x -> 2.94/3.24/3.76x the primal at 10/100/1000 impacts; with a landing's
+    residuals stored apart (`_landings_apart`) 3.07/3.40/3.84x -> 2.26/2.43/2.70x (another
+    machine, separate processes, min of 7/7/3)."""
     if not stages_log(program, init):
         pack, unpack = packing(init)
 
@@ -262,7 +266,8 @@ def stores_pay(program: "Program", init) -> bool:
     than a carry per step that the backward pass runs again (Equinox's checkpointed loop).
 
     Measured (one core, min of 7-11, both in the same process), every step stored / the
-    default two levels: forced impact oscillator, 864 bytes of residuals per step, 3.0x /
+    default two levels: forced impact oscillator, 864 bytes of residuals per step (566
+    since a landing's are stored apart; then 2.3x / 3.4x on another machine), 3.0x /
     4.1-4.4x the primal against 3.55x / 4.5-5.0x; a Fourier forcing of 10/40/100
     coefficients, 3/6/24 KB per step (the pieces the blocks stage them in, and their
     store, cost more than a step's re-run): 4.7/6.0/6.4x / 5.5/7.6/10.9x against
