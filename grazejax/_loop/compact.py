@@ -206,3 +206,27 @@ def _hoisted(fn, example, slot):
 
 def _axes(batched):
     return jax.tree.map(lambda b: 0 if b else None, batched)
+
+
+def under_vmap(tree) -> bool:
+    """Whether `tree` holds values batched by an enclosing `jax.vmap` (seen through `jvp`).
+
+    Reads JAX's tracer classes from `jax._src` (no public API says whether a value is
+    batched); if they move, this answers False and the run takes the staged loop, which is
+    correct under vmap, only slower."""
+    try:
+        from jax._src.interpreters.ad import JVPTracer
+        from jax._src.interpreters.batching import BatchTracer
+    except ImportError:  # pragma: no cover
+        return False
+    for leaf in jax.tree.leaves(tree):
+        while isinstance(leaf, jax.core.Tracer):
+            if isinstance(leaf, BatchTracer):
+                if getattr(leaf, "batch_dim", None) is not None:
+                    return True
+                leaf = leaf.val
+            elif isinstance(leaf, JVPTracer):
+                leaf = leaf.primal
+            else:
+                break
+    return False

@@ -225,6 +225,13 @@ def _search(ctx: LoopContext, inputs: SearchInputs):
     return found, times, touch, boundary
 
 
+def nothing_detected(ctx: LoopContext) -> Detection:
+    """The `Detection` of a step that does not search (a landing step)."""
+    found, _, touch, boundary = _nothing_found(ctx)
+    no = jnp.array(False)
+    return Detection(no, no, jnp.array(jnp.inf, ctx.dtype), found, touch, boundary, no)
+
+
 def _nothing_found(ctx: LoopContext):
     mask_shape = ctx.mask_shape
     return (

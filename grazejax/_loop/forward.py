@@ -9,12 +9,12 @@ import math
 
 import equinox as eqx
 import equinox.internal as eqxi
-import jax
 import jax.lax as lax
 import jax.numpy as jnp
 
 from .._adjoint import REVERSE_HINT
 from .._compiler import SEQUENTIAL_BUFFER_BYTES
+from .compact import under_vmap
 from .policies import sliding_phases
 from .program import Program
 from .state import flush_log, has_staged_rows, impact_log, stage_log
@@ -73,30 +73,6 @@ def stages_log(program: "Program", init) -> bool:
         math.prod(jnp.shape(b)) * jnp.result_type(b).itemsize for b in impact_log(init)
     )
     return rows > 0 and log_bytes > SEQUENTIAL_BUFFER_BYTES and not under_vmap(init)
-
-
-def under_vmap(tree) -> bool:
-    """Whether `tree` holds values batched by an enclosing `jax.vmap` (seen through `jvp`).
-
-    Reads JAX's tracer classes from `jax._src` (no public API says whether a value is
-    batched); if they move, this answers False and the run takes the staged loop, which is
-    correct under vmap, only slower."""
-    try:
-        from jax._src.interpreters.ad import JVPTracer
-        from jax._src.interpreters.batching import BatchTracer
-    except ImportError:  # pragma: no cover
-        return False
-    for leaf in jax.tree.leaves(tree):
-        while isinstance(leaf, jax.core.Tracer):
-            if isinstance(leaf, BatchTracer):
-                if getattr(leaf, "batch_dim", None) is not None:
-                    return True
-                leaf = leaf.val
-            elif isinstance(leaf, JVPTracer):
-                leaf = leaf.primal
-            else:
-                break
-    return False
 
 
 def mark_forward_only(tree):

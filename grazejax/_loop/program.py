@@ -17,8 +17,9 @@ from .._solution import Solution
 from .._status import ImpactKind, Status
 from .._stepping import loop_controller
 from .._unrolled import UnrolledERK, unrollable
+from .compact import under_vmap
 from .context import LoopContext, loop_field
-from .detect import Detection, detect
+from .detect import Detection, detect, nothing_detected
 from .field import continuous_in_state, field_jumps
 from .land import land_if_due
 from .policies import as_zeno_policy, stick_at_start
@@ -256,7 +257,13 @@ def deciding_step(ctx: LoopContext, c_in: LoopState, forced, slides: bool = True
     out_of_steps = _out_of_steps(ctx, c_in)
     c = eqx.tree_at(lambda z: z.done, c_in, c_in.done | out_of_steps)
     taken = take_step(ctx, c, slides, forced)
-    found = detect(ctx, c, taken, slides)
+    if landing and not under_vmap(c_in):
+        # A landing step searches nothing (`detect`'s `detecting` is false for it): known
+        # statically, the search is left out of the program (unbatched: under vmap the
+        # other lanes may not land).
+        found = nothing_detected(ctx)
+    else:
+        found = detect(ctx, c, taken, slides)
     landed, _, s_save = land_if_due(ctx, c, taken, landing)
     new = _next_state(ctx, c, taken, found, landed, s_save)
     return eqx.tree_at(lambda z: z.done, new, new.done & ~out_of_steps), (taken.h_next, taken.keep)

@@ -15,7 +15,8 @@ import jax
 import jax.lax as lax
 import jax.numpy as jnp
 
-from .forward import stages_log, under_vmap
+from .compact import under_vmap
+from .forward import stages_log
 from .program import Program
 from .replay import row, set_row, unrecorded_decisions
 from .state import flush_log, has_staged_rows, impact_log, packing, stage_log, with_full_log
