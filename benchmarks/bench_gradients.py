@@ -62,7 +62,9 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 # 2.3x in every run), as XLA's executor spread the reverse pass's loops over both cores.
 # (Only as a script: the smoke test calls `main` inside a test worker.)
 if __name__ == "__main__" and "--all-cores" not in sys.argv:
-    os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
+    from bench_throughput import pin_to_one_core  # (os and NumPy only: JAX not started)
+
+    pin_to_one_core()
 
 import diffrax  # noqa: E402
 import jax  # noqa: E402

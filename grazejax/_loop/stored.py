@@ -129,6 +129,11 @@ class _Fns:
         self.is_apart = self.apart_step = None  # (see `stored_while_loop`'s `apart`)
         self.apart_rows = 0
 
+    def block_goes_on(self, j, small, tests):
+        """Whether step `j` of a block may run: a block's first step always, later ones
+        unless the step before ended the block (`ends_block`, then `write`)."""
+        return (j == 0) | ~_bool(self.ends(small, *tests[1]))
+
     def apart(self, small, tests):
         """Whether the step from `small` is stored apart (never without `apart`)."""
         return _bool(self.is_apart(small, *tests[2]) if self.is_apart else False)
@@ -239,7 +244,7 @@ def _stored(fns, small, buffers, replay, tests, step_consts, write_consts, apart
 
     def inner_more(state):
         j, k, small, _ = state
-        free = (j == 0) | ~_bool(fns.ends(small, *tests[1]))
+        free = fns.block_goes_on(j, small, tests)
         more = free & (k < fns.max_steps) & fns.cond(small, *tests[0])
         return more & (j < block) if block else more
 
@@ -353,9 +358,8 @@ def _fwd(fns, small, buffers, replay, tests, step_consts, write_consts, apart_co
 
     def inner_more(state):
         j, k, small, *_ = state
-        first_or_free = (j == 0) | ~_bool(fns.ends(small, *tests[1]))
-        return ((j < block) & (k < fns.max_steps) & first_or_free & fns.cond(small, *tests[0])
-                & ~fns.apart(small, tests))
+        return ((j < block) & (k < fns.max_steps) & fns.block_goes_on(j, small, tests)
+                & fns.cond(small, *tests[0]) & ~fns.apart(small, tests))
 
     def inner_step(state):
         j, k, small, staging, (forced, staged) = state
@@ -378,7 +382,7 @@ def _fwd(fns, small, buffers, replay, tests, step_consts, write_consts, apart_co
         record = _set_rows(record, k, staged)
         if fns.apart_step is not None:
             # (not before the write that a block's last step asked for)
-            due = (j == 0) | ~_bool(fns.ends(small, *tests[1]))
+            due = fns.block_goes_on(j, small, tests)
             small, k_next, record, apart = _apart_step(
                 fns, b, k_next, small, due, record, apart, padded, tests, apart_consts)
         buffers, (leaves, _) = _write_linearised(fns, small, buffers, write_consts)
@@ -451,13 +455,18 @@ def _bwd(fns, residuals, ct):
     # twice per step (forced impact oscillator, 1000-row log).
     ct_buffers = _with_float0(_float_part(ct_buffers), buffers)
 
+    def pull_back(layout, stores, i, ct_small, acc):
+        """Row `i` of `stores`' pullback applied: `(ct of the state before, acc + ct of
+        the step's constants)`."""
+        pullback = layout.unpack(tuple(
+            lax.dynamic_index_in_dim(s, i, 0, keepdims=False) for s in stores))
+        d_small, *d_consts = pullback(_with_float0(ct_small, small))
+        return _float_part(d_small), _add(acc, _float_part(d_consts))
+
     def inner_back(state):
         j, ct_small, acc, staging = state
         j = j - 1
-        rows = tuple(lax.dynamic_index_in_dim(s, j, 0, keepdims=False) for s in staging)
-        pullback = step_layout.unpack(rows)
-        d_small, *d_consts = pullback(_with_float0(ct_small, small))
-        return j, _float_part(d_small), _add(acc, _float_part(d_consts)), staging
+        return j, *pull_back(step_layout, staging, j, ct_small, acc), staging
 
     def apart_back(b, ct_small, acc_apart):
         """The pullback of block `b`'s step stored apart, if it had one: `(ct, acc, 1)`."""
@@ -467,10 +476,7 @@ def _bwd(fns, residuals, ct):
         row = of_block[b]
 
         def back(ct_small, acc_apart):
-            pullback = fns.apart_layout.unpack(tuple(
-                lax.dynamic_index_in_dim(s, row, 0, keepdims=False) for s in stores))
-            d_small, *d_consts = pullback(_with_float0(ct_small, small))
-            return _float_part(d_small), _add(acc_apart, _float_part(d_consts))
+            return pull_back(fns.apart_layout, stores, row, ct_small, acc_apart)
 
         ct_small, acc_apart = lax.cond(row >= 0, back, lambda *a: a, ct_small, acc_apart)
         return ct_small, acc_apart, (row >= 0).astype(starts.dtype)
