@@ -1,6 +1,6 @@
 """Unrequested effects should cost nothing: the price of options a run does not use.
 
-    python benchmarks/bench_unused.py [--lanes N] [--repeats R] [--out DIR]
+    python benchmarks/bench_unused.py [--lanes N] [--repeats R] [--all-cores] [--out DIR]
 
 Two options that a run can carry without using them (grazejax issue 14, target ≤ 1.05×):
 
@@ -10,23 +10,37 @@ Two options that a run can carry without using them (grazejax issue 14, target �
 Each ratio is measured side by side in one process, the two configurations interleaved
 (median of `--repeats` timings of each), at batch 1 (`jit(simulate)`) and at batch N
 (`jit(vmap(simulate))`). Wall-clock µs per trajectory; the run is t ∈ [0, 60] from the
-cycle's post-impact state (9 impacts), Tsit5 at rtol = atol = 1e-10.
+cycle's post-impact state (9 impacts), Tsit5 at rtol = atol = 1e-10. One core.
+
+Twice: with glibc's default allocator, then after `grazejax.retain_freed_memory()` (what
+`grazejax reproduce` does): a large log's cost at batch N is mostly the fresh pages the
+kernel hands out for each call's results (page faults, counted per call).
 
 Writes DIR/unused.md (default benchmarks/results).
 """
 
 import argparse
 import os
+import resource
+import sys
 import time
 
 import numpy as np
 from bench_roots import write_result
+
+# One core, pinned before JAX starts its thread pools (`--all-cores` lifts it): as the
+# throughput and gradient benchmarks.
+if __name__ == "__main__" and "--all-cores" not in sys.argv:
+    from bench_throughput import pin_to_one_core
+
+    pin_to_one_core()
 
 
 def main(argv=None):
     parser = argparse.ArgumentParser()
     parser.add_argument("--lanes", type=int, default=256)
     parser.add_argument("--repeats", type=int, default=15)
+    parser.add_argument("--all-cores", action="store_true", help="do not pin to one core")
     parser.add_argument("--out", default=os.path.join(os.path.dirname(__file__), "results"))
     opts = parser.parse_args(argv)
 
@@ -67,29 +81,60 @@ def main(argv=None):
             ):
                 raise RuntimeError(f"{name}: a run did not end as expected")
     print("impacts per run:", int(impacts[0]))
+    per_default, faults_default = timings(runs, inputs, opts)
+    # The same runs with glibc keeping freed memory: the 4096-row log's cost at batch N was
+    # the kernel's fresh pages for each call's results (grazejax/_memory.py).
+    retained = gj.retain_freed_memory()
+    per_retained, faults_retained = timings(runs, inputs, opts) if retained else (None, None)
+    lines = [
+        "# Unused options: cost relative to a plain run (target ≤ 1.05×)", "",
+        f"ex1dof μ = 0.2, t ∈ [0, 60] ({int(impacts[0])} impacts, no sliding), Tsit5 1e-10; "
+        f"wall µs per trajectory, median of {opts.repeats} interleaved repeats; page faults "
+        f"per call of the batch-{opts.lanes} program (`getrusage`, minor faults).", "",
+    ]
+    lines += table(runs, per_default, faults_default, opts.lanes,
+                   "glibc's default allocator (as a script that does not opt in)")
+    if retained:
+        lines += [""] + table(runs, per_retained, faults_retained, opts.lanes,
+                              "after `grazejax.retain_freed_memory()` (as `grazejax reproduce`)")
+    else:
+        lines += ["", "(`retain_freed_memory()`: not glibc here, nothing to compare)"]
+    write_result(lines, opts.out, "unused.md")
+
+
+def timings(runs, inputs, opts):
+    """Median µs per trajectory of each configuration at batch 1 and N, and the minor page
+    faults per call of the batch-N programs."""
+    import jax
+
     times = {(name, b): [] for name in runs for b in (0, 1)}
+    faults = dict.fromkeys(runs, 0)
     # Batch 1 and batch N in separate passes: a single run timed right after the previous
     # configuration's batched run (58 MB of 4096-row logs written and freed) paid for the
     # evicted caches — the first configuration measured 5.0 ms against 1.7 ms timed alone.
     for b, x in enumerate(inputs):
         for _ in range(opts.repeats):
             for name, fns in runs.items():
+                before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
                 t = time.perf_counter()
                 jax.block_until_ready(fns[b](x))
                 times[name, b].append(time.perf_counter() - t)
+                if b == 1:
+                    faults[name] += resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before
     per = {k: np.median(v) / (1 if k[1] == 0 else opts.lanes) * 1e6 for k, v in times.items()}
-    lines = [
-        "# Unused options: cost relative to a plain run (target ≤ 1.05×)", "",
-        f"ex1dof μ = 0.2, t ∈ [0, 60] ({int(impacts[0])} impacts, no sliding), Tsit5 1e-10; "
-        f"wall µs per trajectory, median of {opts.repeats} interleaved repeats.", "",
-        f"| configuration | batch 1 | ratio | batch {opts.lanes} | ratio |",
-        "|---|---:|---:|---:|---:|",
-    ]
+    return per, {name: n / opts.repeats for name, n in faults.items()}
+
+
+def table(runs, per, faults, lanes, title):
+    lines = [f"{title}:", "",
+             f"| configuration | batch 1 | ratio | batch {lanes} | ratio | page faults a call |",
+             "|---|---:|---:|---:|---:|---:|"]
     for name in runs:
         r1 = per[name, 0] / per["plain", 0]
         rn = per[name, 1] / per["plain", 1]
-        lines.append(f"| {name} | {per[name, 0]:.0f} | {r1:.2f}× | {per[name, 1]:.1f} | {rn:.2f}× |")
-    write_result(lines, opts.out, "unused.md")
+        lines.append(f"| {name} | {per[name, 0]:.0f} | {r1:.2f}× | {per[name, 1]:.1f} | "
+                     f"{rn:.2f}× | {faults[name]:.0f} |")
+    return lines
 
 
 if __name__ == "__main__":

@@ -46,6 +46,7 @@ from ._linearize import w_map as w_map
 from ._loop.policies import AbstractZenoPolicy as AbstractZenoPolicy
 from ._loop.policies import ZenoStick as ZenoStick
 from ._loop.policies import ZenoStop as ZenoStop
+from ._memory import retain_freed_memory as retain_freed_memory
 from ._periodic import Contacts as Contacts
 from ._periodic import Floquet as Floquet
 from ._periodic import GrazingBranches as GrazingBranches

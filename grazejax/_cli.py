@@ -206,6 +206,9 @@ def _reproduce(ns, parser) -> int:
         print(_figure_help())
         return 0
     _enable_compilation_cache()
+    from ._memory import retain_freed_memory
+
+    retain_freed_memory()  # its own process: no fresh pages for each run's results
     try:
         names = rp.resolve_names(ns.only)
         out = rp.prepare_output(ns.out if ns.out is not None else rp.DEFAULT_OUT)
