@@ -124,27 +124,8 @@ def _compacted(phase, nothing, batch, need, operands, axes):
 
     count = jnp.sum(need.astype(jnp.int32))
     rounds = -(-batch // width)
-    # The lanes that need the phase, in lane order, padded with `batch` (out of range:
-    # their gathers are clamped and their scatters dropped); only when some lane needs
-    # it: on the other iterations (most of them in phase) its cumsum and scatter cost an
-    # in-phase sweep ~7% (grazejax issue 14).
-    queue = lax.cond(
-        count > 0, lambda: jnp.nonzero(need, size=rounds * width, fill_value=batch)[0],
-        lambda: jnp.full((rounds * width,), batch),
-    )
     # (vmap gives every leaf the batch axis, also those `nothing` does not compute)
     out = jax.vmap(nothing, in_axes=(axes,), axis_size=batch)(operands)
-
-    def more(carry):
-        start, _ = carry
-        return start < count
-
-    def one_round(carry):
-        start, out = carry
-        lanes = lax.dynamic_slice(queue, (start,), (width,))
-        result = lane_phase(_pick(operands, axes, lanes, batch), width)
-        out = jax.tree.map(lambda o, r: o.at[lanes].set(r, mode="drop"), out, result)
-        return start + width, out
 
     if width == batch:
         # A small batch: one call over every lane, no gathers.
@@ -155,6 +136,24 @@ def _compacted(phase, nothing, batch, need, operands, axes):
             )
     else:
         def run_phase():
+            # The lanes that need the phase, in lane order, padded with `batch` (out of
+            # range: their gathers are clamped and their scatters dropped). Built here,
+            # under the `cond` below: built at every iteration, its cumsum and scatter
+            # cost an in-phase sweep ~7%, where most iterations need no phase (grazejax
+            # issue 14).
+            queue = jnp.nonzero(need, size=rounds * width, fill_value=batch)[0]
+
+            def more(carry):
+                start, _ = carry
+                return start < count
+
+            def one_round(carry):
+                start, out = carry
+                lanes = lax.dynamic_slice(queue, (start,), (width,))
+                result = lane_phase(_pick(operands, axes, lanes, batch), width)
+                out = jax.tree.map(lambda o, r: o.at[lanes].set(r, mode="drop"), out, result)
+                return start + width, out
+
             return lax.while_loop(more, one_round, (jnp.array(0), out))[1]
 
     # Only when some lane needs the phase: the loop's carry (every lane's output) is copied
