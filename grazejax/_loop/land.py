@@ -13,7 +13,7 @@ from .._status import Status
 from .compact import per_lane
 from .context import LoopContext
 from .field import field_jumps
-from .policies import keep_sliding, start_or_end_sliding, zeno_test
+from .policies import if_any_lane, keep_sliding, start_or_end_sliding, zeno_test
 from .state import (
     LoopState,
     dd_add,
@@ -168,11 +168,14 @@ def _newton_event_time(ctx: LoopContext, c: LoopState, y_star, sa, s_star):
     if ctx.sticky:
         # A release: the same Newton step on the free Φ̈ of the sliding surface, along
         # the sliding flow, so that jacfwd gets the release time's tangent.
-        r, r_dot = jax.jvp(
-            lambda s_, y_: ctx.sliding_pull(c.stick, s_, y_, t_hi, t_lo, args_),
-            (s_star, y_star), (jnp.ones_like(s_star), f_star),
-        )
-        delta = newton(c.releasing, r, r_dot, delta)
+        def release_newton():
+            r, r_dot = jax.jvp(
+                lambda s_, y_: ctx.sliding_pull(c.stick, s_, y_, t_hi, t_lo, args_),
+                (s_star, y_star), (jnp.ones_like(s_star), f_star),
+            )
+            return newton(c.releasing, r, r_dot, delta)
+
+        delta = if_any_lane(c.releasing, release_newton, delta)
     s_event = s_star + delta
     y_event = y_star + f_star * delta
     return s_event, y_event

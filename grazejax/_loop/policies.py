@@ -91,6 +91,17 @@ def sliding_phases(cond, step, free_step, slides):
     return phases
 
 
+def if_any_lane(need, compute, unchanged):
+    """`compute()` if some lane `need`s it (under `vmap`: any lane of the batch), else
+    `unchanged`, which must be what `compute()` gives where no lane needs it.
+
+    The sliding policy's work at a landing (a release's Newton step, the tests of a lane
+    that slid, the projection onto the sliding manifold) is needed only where a lane slides
+    or starts to: a run that never slid paid 1.08-1.10× for it (ex1dof, 256 lanes or one;
+    grazejax issue 14)."""
+    return lax.cond(eqxi.unvmap_any(need), compute, lambda: unchanged)
+
+
 def sliding_field(vector_field, pieces, t, y, args_, stick, free):
     """f + λd on the surfaces slid on (see *Sticking* in `simulate`); the constrained field
     is evaluated only while some lane slides."""
@@ -184,11 +195,16 @@ def keep_sliding(ctx: "LoopContext", c: "LoopState", lands, t_event, x_post, res
     # it slid on, up to the sliding flow's drift (solver tolerance, not round-off,
     # so the on-surface floor cannot tell); it keeps sliding if not thrown off it.
     was_on = c.stick & lands & ~c.releasing
-    for i, piece in enumerate(ctx.pieces):
-        _, gd, gdd, _, grad_gd, _ = ctx.contact_geometry(piece, t_event, x_post, args_)
-        drift = jnp.sum(jnp.abs(grad_gd) * ctx.state_tol(x_post))
-        stays = was_on[i] & (gd <= drift) & (gdd < 0)
-        stuck_each = stuck_each.at[i].set(stuck_each[i] | stays)
+
+    def stays_on(stuck_each):
+        for i, piece in enumerate(ctx.pieces):
+            _, gd, gdd, _, grad_gd, _ = ctx.contact_geometry(piece, t_event, x_post, args_)
+            drift = jnp.sum(jnp.abs(grad_gd) * ctx.state_tol(x_post))
+            stays = was_on[i] & (gd <= drift) & (gdd < 0)
+            stuck_each = stuck_each.at[i].set(stuck_each[i] | stays)
+        return stuck_each
+
+    stuck_each = if_any_lane(jnp.any(was_on), lambda: stays_on(stuck_each), stuck_each)
     restart = restart | was_on
     return restart, stuck_each, released
 
@@ -229,10 +245,16 @@ def start_or_end_sliding(
     starts = lands & applied_any & (jnp.sum(want) == 1)
     zeno = (zeno | stuck) & ~starts
     stick = jnp.where(starts, want, jnp.where(lands & (c.releasing | applied_any), False, c.stick))
-    x_moved = x_post
-    for i, piece in enumerate(ctx.pieces):
-        on_m = ctx.project_onto_contact(piece, t_event, x_post, args_)
-        x_moved = jnp.where((starts & want[i]) | released[i], on_m, x_moved)
+    moves = (starts & want) | released
+
+    def projected():
+        x_moved = x_post
+        for i, piece in enumerate(ctx.pieces):
+            on_m = ctx.project_onto_contact(piece, t_event, x_post, args_)
+            x_moved = jnp.where(moves[i], on_m, x_moved)
+        return x_moved
+
+    x_moved = if_any_lane(jnp.any(moves), projected, x_post)
     event_row = (
         starts | jnp.any(released), x_post, x_moved,
         jnp.argmax(want | released),
