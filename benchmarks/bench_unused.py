@@ -81,6 +81,10 @@ def main(argv=None):
             ):
                 raise RuntimeError(f"{name}: a run did not end as expected")
     print("impacts per run:", int(impacts[0]))
+    # The floor under a large log: a program that only fills the 4096-row log's buffers
+    # (NaN times and states, -1 surface and kind) and returns them, as the run must.
+    runs[FLOOR] = tuple(log_fill(fn(x)) for fn, x in zip(runs["max_impacts=4096"], inputs,
+                                                           strict=True))
     per_default, faults_default = timings(runs, inputs, opts)
     # The same runs with glibc keeping freed memory: the 4096-row log's cost at batch N was
     # the kernel's fresh pages for each call's results (grazejax/_memory.py).
@@ -100,6 +104,27 @@ def main(argv=None):
     else:
         lines += ["", "(`retain_freed_memory()`: not glibc here, nothing to compare)"]
     write_result(lines, opts.out, "unused.md")
+
+
+FLOOR = "its buffers alone (floor)"
+
+
+def log_fill(sol):
+    """A jitted function of the runs' input that returns NaN/-1-filled buffers of the
+    shapes and dtypes of `sol`'s impact log."""
+    import jax
+    import jax.numpy as jnp
+
+    logs = (sol.impact_times, sol.impact_pre, sol.impact_post, sol.impact_surface,
+            sol.impact_kind)
+
+    def fill(x):
+        # (depends on the input, so that XLA cannot fold the buffers into constants)
+        anchor = jnp.ravel(x)[0] * 0
+        return [jnp.full(a.shape, jnp.nan if jnp.issubdtype(a.dtype, jnp.inexact) else -1,
+                         a.dtype) + anchor.astype(a.dtype) for a in logs]
+
+    return jax.jit(fill)
 
 
 def timings(runs, inputs, opts):
@@ -134,6 +159,9 @@ def table(runs, per, faults, lanes, title):
         rn = per[name, 1] / per["plain", 1]
         lines.append(f"| {name} | {per[name, 0]:.0f} | {r1:.2f}× | {per[name, 1]:.1f} | "
                      f"{rn:.2f}× | {faults[name]:.0f} |")
+    floor = 1 + per[FLOOR, 1] / per["plain", 1]
+    lines += ["", f"A 4096-row log at batch {lanes} cannot cost less than plain + its buffers "
+              f"alone: {floor:.2f}× here."]
     return lines
 
 
