@@ -39,6 +39,7 @@ import numpy as np
 from ._adjoint import loop_kinds
 from ._compiler import single_run_jit
 from ._loop.bounded import bounded_while_loop
+from ._loop.compact import under_vmap
 from ._loop.forward import mark_forward_only, staged_log_loop, stages_log
 from ._loop.policies import AbstractZenoPolicy
 from ._loop.program import Program, build_program
@@ -226,7 +227,7 @@ def _run(scene, x0, t0, t1, args, *, saveat, direction, adjoint, max_steps, **op
     """The run itself: one XLA program (prepare, loop, finish), no Python-side checks."""
     checked, program = prepare(
         scene, x0, t0, t1, args, saveat=saveat, direction=direction, adjoint=adjoint,
-        max_steps=max_steps, **options,
+        max_steps=max_steps, batched=under_vmap((x0, t0, t1, args)), **options,
     )
 
     def cond(c):

@@ -347,8 +347,10 @@ def _build_chunk(scene, in_axes_args, x0_batched, devices, options, direction, w
                 lambda leaf, axis: leaf if axis is None else leaf[0], a, in_axes_args,
                 is_leaf=is_none,
             )
+            # (`batched`: the pool runs the program's step on a batch of lanes)
             checked, program = prepare(
-                scene, lane_x0, t0, t1, lane_args, saveat=saveat, direction=direction, **kw
+                scene, lane_x0, t0, t1, lane_args, saveat=saveat, direction=direction,
+                batched=True, **kw
             )
             x0s = x0s.astype(checked.x0.dtype)  # as simulate's validate_inputs does
             return run_pool(program, x0s, a, (x_axis, in_axes_args), valid, width,

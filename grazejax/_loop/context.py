@@ -46,6 +46,9 @@ class LoopContext(eqx.Module):
     policy: AbstractZenoPolicy
     # Sliding is compiled in only when asked for (ZenoStick) and there is a surface.
     sticky: bool
+    # The loop runs on a batch of lanes (`jax.vmap`, `sweep`'s pool): the impact log's
+    # row writes then run only on iterations where some lane writes (`write_log_rows`).
+    batched: bool
     # Probe the field for a jump at every restart state (`field.py`; simulate's
     # `check_field_jumps`).
     check_field_jumps: bool

@@ -60,7 +60,7 @@ def land_if_due(ctx: LoopContext, c: LoopState, step: Step, landing: bool | None
         )
     log = impact_log(c)
     row = c.num_impacts + log_row_offset(c)
-    log = write_log_rows(log, row, t_event, rows)
+    log = write_log_rows(log, row, t_event, rows, skip_unwritten=ctx.batched)
     landed = with_impact_log(with_buffers(landed_small, c), log)
     return landed, t_event, s_save
 

@@ -55,6 +55,7 @@ class Program(eqx.Module):
 def build_program(
     scene: Scene, checked, *, solver, rtol, atol, stepsize_controller, dt0, max_impacts,
     max_steps, zeno_rtol, zeno="stop", adjoint=None, check_field_jumps=True, args=None,
+    batched=False,
 ) -> Program:
     """The loop functions for `scene`, with inputs checked by `validate_inputs`.
 
@@ -65,7 +66,7 @@ def build_program(
         scene, checked, solver=solver, rtol=rtol, atol=atol,
         stepsize_controller=stepsize_controller, dt0=dt0, max_impacts=max_impacts,
         max_steps=max_steps, zeno_rtol=zeno_rtol, zeno=zeno, adjoint=adjoint,
-        check_field_jumps=check_field_jumps, args=args,
+        check_field_jumps=check_field_jumps, args=args, batched=batched,
     )
     # (functools.partial, not bound methods: `Program`'s static fields hash by identity.)
     step_ = functools.partial(step, ctx)
@@ -81,7 +82,7 @@ def build_program(
 
 def build_context(
     scene: Scene, checked, *, solver, rtol, atol, stepsize_controller, dt0, max_impacts,
-    max_steps, zeno_rtol, zeno, adjoint, check_field_jumps=True, args=None,
+    max_steps, zeno_rtol, zeno, adjoint, check_field_jumps=True, args=None, batched=False,
 ) -> LoopContext:
     policy = as_zeno_policy(zeno)
     if policy.slides and checked.sigma < 0:
@@ -132,6 +133,7 @@ def build_context(
         tol_r=getattr(controller, "rtol", rtol), tol_a=getattr(controller, "atol", atol),
         solver=solver, controller=controller, has_error=has_error, term=term,
         error_order=solver.error_order(term), kinds=kinds, policy=policy, sticky=sticky,
+        batched=bool(batched),
         # A field that cannot jump needs no probe (neither compiled nor run): 8% of an
         # ex1dof run's compile time and 20 of its 212 fusions.
         check_field_jumps=bool(check_field_jumps) and m > 0

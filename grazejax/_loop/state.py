@@ -1,5 +1,6 @@
 """`LoopState`: everything one lane carries from one solver step to the next."""
 
+import functools
 from typing import Any
 
 import equinox as eqx
@@ -216,38 +217,55 @@ def write_log(log, row, apply, t, pre, post, surface, kind):
     )
 
 
-def write_log_rows(log, row, t, rows):
+def write_log_rows(log, row, t, rows, skip_unwritten=False):
     """Write one landing's rows (`rows = (apply, pre, post, surface, kind)`, one entry per
     slot, all at time `t`): the applied slots, in order, from `row` on.
 
     One scatter per buffer for all slots (not one write per slot): each write is a kernel
     run at every iteration, applied or not, and a sliding policy's extra slot cost a
-    single run ~5% (grazejax issue 14). The scatters run only on iterations where some
-    lane writes a row: under `vmap` they were the rest of what `zeno="stick"` cost a run
-    that never slides (256 ex1dof lanes, 9 impacts: 1.075× → 0.99×).
+    single run ~5% (grazejax issue 14).
+
+    The writes run only on iterations where some lane writes a row (most iterations land
+    no lane): always for several slots (a sliding policy's second slot, a scatter per
+    buffer, made a run that never slides cost 1.08-1.10× at batch 1 and 256, 0.99-1.03×
+    without), for one slot with `skip_unwritten` (a batched loop). Under `vmap` each write
+    is a scatter over the batch: an ex1dof sweep (2048 lanes, Dopri8 2e-12, one core) took
+    43-44 µs per trajectory in phase against 50, 65-67 against 72 at random phases. For
+    one trajectory the single write is a small in-place update, and through a conditional
+    `jacfwd` of a run's final state took 1.1-1.25× (measured).
     """
-    apply, pre, post, surface, kind = rows
-    if apply.shape[0] == 1 or not isinstance(log[0], jax.Array):
-        # One slot: the single write. The write-once buffers of a checkpointed loop: row by
-        # row (see `write_log`).
-        at = jnp.array(0)
-        for slot in range(apply.shape[0]):
-            log = write_log(log, row + at, apply[slot], t, pre[slot], post[slot],
-                            surface[slot], kind[slot])
-            at = at + apply[slot]
-        return log
-    size = log[0].shape[0]
-
-    def write(log):
-        # The applied slots go to consecutive rows; the others out of bounds, dropped.
-        index = jnp.where(apply, row + jnp.cumsum(apply) - apply, size)
-        times = jnp.broadcast_to(t, apply.shape)
-        return tuple(
-            buffer.at[index].set(value.astype(buffer.dtype), mode="drop")
-            for buffer, value in zip(log, (times, pre, post, surface, kind), strict=True)
-        )
-
+    apply = rows[0]
+    if not isinstance(log[0], jax.Array):
+        # The write-once buffers of a checkpointed loop: row by row (see `write_log`).
+        return _write_slots_one_by_one(log, row, t, rows)
+    if apply.shape[0] == 1:
+        write = functools.partial(_write_slots_one_by_one, row=row, t=t, rows=rows)
+        if not skip_unwritten:
+            return write(log)
+    else:
+        write = functools.partial(_scatter_slots, row=row, t=t, rows=rows)
     return jax.lax.cond(eqxi.unvmap_any(jnp.any(apply)), write, lambda log: log, log)
+
+
+def _write_slots_one_by_one(log, row, t, rows):
+    apply, pre, post, surface, kind = rows
+    at = jnp.array(0)
+    for slot in range(apply.shape[0]):
+        log = write_log(log, row + at, apply[slot], t, pre[slot], post[slot], surface[slot],
+                        kind[slot])
+        at = at + apply[slot]
+    return log
+
+
+def _scatter_slots(log, row, t, rows):
+    """The applied slots to consecutive rows from `row`; the others out of bounds, dropped."""
+    apply, pre, post, surface, kind = rows
+    index = jnp.where(apply, row + jnp.cumsum(apply) - apply, log[0].shape[0])
+    times = jnp.broadcast_to(t, apply.shape)
+    return tuple(
+        buffer.at[index].set(value.astype(buffer.dtype), mode="drop")
+        for buffer, value in zip(log, (times, pre, post, surface, kind), strict=True)
+    )
 
 
 def log_row_offset(c: LoopState):
