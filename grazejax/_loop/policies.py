@@ -97,7 +97,8 @@ def if_any_lane(need, compute, unchanged):
 
     The sliding policy's work at a landing (a release's Newton step, the tests of a lane
     that slid, the projection onto the sliding manifold) is needed only where a lane slides
-    or starts to: a run that never slid paid 1.08-1.10× for it (ex1dof, 256 lanes or one;
+    or starts to. With the write of the policy's second log slot (`write_log_rows`) it made
+    a run that never slid cost 1.08-1.10× (ex1dof, 256 lanes or one; this part ~2% of it;
     grazejax issue 14)."""
     return lax.cond(eqxi.unvmap_any(need), compute, lambda: unchanged)
 
