@@ -52,6 +52,19 @@ def compacted_width(batch: int) -> int:
     return min(batch, max(MIN_WIDTH, -(-batch // SHARE)))
 
 
+def if_any_lane(need, compute: Callable, unchanged):
+    """`compute()` if some lane `need`s it (under `vmap`: any lane of the batch), else
+    `unchanged`, which must be what `compute()` gives where no lane needs it.
+
+    The cheap form of `per_lane` for work that is rare and light: no compaction, the whole
+    batch runs `compute` on the iterations where any lane needs it. Used for the sliding
+    policy's work at a landing (a release's Newton step, the tests of a lane that slid,
+    the projection onto the sliding manifold, ~2% of a run that never slides), the log's
+    row writes (`write_log_rows`), the sliding field and the equilibrium probe.
+    """
+    return lax.cond(eqxi.unvmap_any(need), compute, lambda: unchanged)
+
+
 def per_lane(
     phase: Callable, need, operands: Any, nothing: Callable, *, differentiable: bool = False
 ) -> Any:

@@ -10,10 +10,10 @@ import jax.numpy as jnp
 from .._geometry import FLOOR_ULPS, is_tangential
 from .._roots import safe_divide
 from .._status import Status
-from .compact import per_lane
+from .compact import if_any_lane, per_lane
 from .context import LoopContext
 from .field import field_jumps
-from .policies import if_any_lane, keep_sliding, start_or_end_sliding, zeno_test
+from .policies import keep_sliding, start_or_end_sliding, zeno_test
 from .state import (
     LoopState,
     dd_add,

@@ -12,6 +12,7 @@ import jax.numpy as jnp
 from .._geometry import contact_frame
 from .._roots import bracketed_root, safe_divide
 from .._status import ImpactKind, Status
+from .compact import if_any_lane
 from .state import write_log
 
 if TYPE_CHECKING:
@@ -91,18 +92,6 @@ def sliding_phases(cond, step, free_step, slides):
     return phases
 
 
-def if_any_lane(need, compute, unchanged):
-    """`compute()` if some lane `need`s it (under `vmap`: any lane of the batch), else
-    `unchanged`, which must be what `compute()` gives where no lane needs it.
-
-    The sliding policy's work at a landing (a release's Newton step, the tests of a lane
-    that slid, the projection onto the sliding manifold) is needed only where a lane slides
-    or starts to. With the write of the policy's second log slot (`write_log_rows`) it made
-    a run that never slid cost 1.08-1.10× (ex1dof, 256 lanes or one; this part ~2% of it;
-    grazejax issue 14)."""
-    return lax.cond(eqxi.unvmap_any(need), compute, lambda: unchanged)
-
-
 def sliding_field(vector_field, pieces, t, y, args_, stick, free):
     """f + λd on the surfaces slid on (see *Sticking* in `simulate`); the constrained field
     is evaluated only while some lane slides."""
@@ -116,7 +105,7 @@ def sliding_field(vector_field, pieces, t, y, args_, stick, free):
             out = out + jnp.where(stick[i], force, 0.0)
         return out
 
-    return lax.cond(eqxi.unvmap_any(jnp.any(stick)), constrained, lambda: free)
+    return if_any_lane(jnp.any(stick), constrained, free)
 
 
 def stick_at_start(ctx: "LoopContext", x0, args, stuck0, status0, zeno_time0, log):

@@ -1,16 +1,15 @@
 """`LoopState`: everything one lane carries from one solver step to the next."""
 
-import functools
 from typing import Any
 
 import equinox as eqx
-import equinox.internal as eqxi
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int, PyTree
 
 from .._custom_types import Args, BoolScalar, IntScalar, RealScalar, State
+from .compact import if_any_lane
 
 
 class LoopState(eqx.Module):
@@ -240,13 +239,12 @@ def write_log_rows(log, row, t, rows, skip_unwritten=False):
     if not isinstance(log[0], jax.Array):
         # The write-once buffers of a checkpointed loop: row by row (see `write_log`).
         return _write_slots_one_by_one(log, row, t, rows)
-    if apply.shape[0] == 1:
-        write = functools.partial(_write_slots_one_by_one, row=row, t=t, rows=rows)
-        if not skip_unwritten:
-            return write(log)
-    else:
-        write = functools.partial(_scatter_slots, row=row, t=t, rows=rows)
-    return jax.lax.cond(eqxi.unvmap_any(jnp.any(apply)), write, lambda log: log, log)
+    if apply.shape[0] > 1:
+        return if_any_lane(jnp.any(apply), lambda: _scatter_slots(log, row, t, rows), log)
+    if skip_unwritten:
+        return if_any_lane(jnp.any(apply), lambda: _write_slots_one_by_one(log, row, t, rows),
+                           log)
+    return _write_slots_one_by_one(log, row, t, rows)
 
 
 def _write_slots_one_by_one(log, row, t, rows):

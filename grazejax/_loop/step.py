@@ -11,6 +11,7 @@ from jaxtyping import PyTree
 
 from .._custom_types import BoolScalar, RealScalar, State
 from .._stepping import error_or_zero
+from .compact import if_any_lane
 from .context import LoopContext
 from .replay import decision, replay_decisions
 from .state import LoopState
@@ -104,4 +105,4 @@ def equilibrium_probe(ctx: LoopContext, sa, sb, y0, y1, y_error, targs):
         nearby_error = error_of(jax.lax.stop_gradient(y0) + u)
         return jnp.where(still, jax.lax.stop_gradient(jnp.abs(nearby_error)), y_error)
 
-    return lax.cond(eqxi.unvmap_any(still), probe, lambda: y_error)
+    return if_any_lane(still, probe, y_error)
