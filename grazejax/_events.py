@@ -15,9 +15,20 @@ re-trigger at the start". We test each accepted step for
 - a *dip*: g > 0 at both ends but ġ(sa) < 0 < ġ(sb), so g has an interior minimum; we
   find it (root of ġ along the interpolant) and call it an impact when g_min <= 0.
 
-The derivative ġ is the exact derivative of the interpolated gap, so the test costs two
-gap evaluations and two polynomial derivatives per surface per step; the root searches run
-only when some lane (under vmap) has a candidate.
+Both tests read only the ends of an interval, so they are complete only where g has at
+most one interior extremum there. A step is long where the *state* is easy to integrate,
+not where the gap is: a wall that oscillates (Φ = x − a sin ωt) or a curved surface crossed
+by a long step (Φ = r + cos x) puts several extrema of g inside one step, and a dip to
+Φ < 0 between end slopes that are not (−, +) went unseen. So every step is tested in
+`SUB_STEPS` equal sub-intervals, at the interpolant's values and slopes at their ends
+(`split_step_ends`), and is accepted only if those samples *resolve* the gap
+(`gap_resolution`): a cubic Hermite model of each half predicts the quarter points to
+within a fraction of the gap's variation or its round-off floor, and no sub-interval's
+model holds a pair of extrema that straddles Φ = 0. A step that fails is retaken shorter,
+as the step-size controller retakes an inaccurate one. Resolved steps of smooth flows
+pass at once (the model's error shrinks like h⁴): the test costs three more interpolant
+evaluations per surface per step; the root searches run only when some lane (under vmap)
+has a candidate.
 """
 
 from typing import NamedTuple
@@ -29,6 +40,15 @@ from ._roots import bracketed_root, safe_divide
 
 # Where a restart step that leaves Φ = 0 tangentially is judged (see `step_ends`).
 LIFT_FRACTION = 2.0**-20
+# Every step's gap is sampled at the ends of this many equal sub-intervals (θ = j/4).
+# `gap_resolution` checks each half's cubic model at its midpoint, so it must be 4.
+SUB_STEPS = 4
+# A half's cubic model must predict its midpoint to this fraction of the gap's variation
+# over the step (or to the round-off floor) for the step to count as resolved.
+RESOLUTION = 0.125
+# A surface farther than this many times the gap's variation (plus the model's error)
+# from every sample cannot be reached within the step: its resolution is not asked for.
+FAR = 4.0
 
 
 class StepEnds(NamedTuple):
@@ -106,6 +126,96 @@ def step_ends(rate, sa, sb, restart, g_a, g_b) -> StepEnds:
     return StepEnds(g_start, g_b, slope_start, slope_b, jnp.where(lifting, s_lift, sa))
 
 
+def split_step_ends(ends: StepEnds, bounds, g, slope, restart) -> StepEnds:
+    """The `StepEnds` of the step's `SUB_STEPS` sub-intervals, each field an array [K].
+
+    `ends` are the whole step's (from `step_ends`: the restart guard and the lift-off
+    belong to the first sub-interval); `bounds` [K + 1] the sub-intervals' ends in local
+    time, `g` and `slope` [K + 1] the gap and its rate there (the entries at the step's
+    ends are not read). Interior values are guarded like the ends: on a restart step
+    G(s) = g(s)/(s − sa), which has g's sign.
+    """
+    sa = bounds[0]
+    inner_s, inner_g = bounds[1:-1], g[1:-1]
+    apart = inner_s > sa
+    inner_G = jnp.where(restart & apart, inner_g / jnp.where(apart, inner_s - sa, 1.0), inner_g)
+    inner_slope = slope[1:-1]
+    before = lambda first, inner: jnp.concatenate([jnp.reshape(first, (1,)), inner])  # noqa: E731
+    after = lambda inner, last: jnp.concatenate([inner, jnp.reshape(last, (1,))])  # noqa: E731
+    return StepEnds(
+        g_start=before(ends.g_start, inner_G),
+        g_end=after(inner_G, ends.g_end),
+        slope_start=before(ends.slope_start, inner_slope),
+        slope_end=after(inner_slope, ends.slope_end),
+        s_start=before(ends.s_start, inner_s),
+    )
+
+
+def gap_resolution(g, d, floor):
+    """Whether the samples of a step resolve its gap: `(resolved, shrink)`.
+
+    `g` [5] is the gap at θ = 0, ¼, ½, ¾, 1 and `d` [5] its slope in θ (h·ġ); `floor`
+    the gap's round-off floor. Two tests (module docstring):
+
+    - *the model is good*: each half's cubic Hermite interpolant (from its ends' values
+      and slopes) predicts the gap at the half's midpoint to within `RESOLUTION` of the
+      gap's variation over the step, or to the floor. A gap that oscillates within the
+      step fails it (the prediction is off by the oscillation), unless every sample is
+      `FAR` from Φ = 0 compared with the variation and the misfit.
+    - *no hidden pair of extrema*: no quarter's cubic model has a local maximum and a
+      local minimum inside it, deeper apart than the floor, that straddle Φ = 0 (within
+      the misfit). The end-slope tests cannot see a dip between such extrema (their end
+      slopes are (+, +) or (−, −)), and a crossing between them may have three roots.
+
+    `shrink` is the factor by which to retake the step: from the model's misfit
+    (which shrinks like h⁴) where the first test fails, else a quarter.
+    """
+    misfit = jnp.maximum(
+        jnp.abs(g[1] - (0.5 * (g[0] + g[2]) + (d[0] - d[2]) / 16)),
+        jnp.abs(g[3] - (0.5 * (g[2] + g[4]) + (d[2] - d[4]) / 16)),
+    )
+    variation = jnp.max(g) - jnp.min(g)
+    far = jnp.min(jnp.abs(g)) > FAR * (variation + misfit)
+    allowed = jnp.maximum(RESOLUTION * variation, floor)
+    modelled = far | (misfit <= allowed)
+    margin = misfit + floor
+    hidden = jnp.array(False)
+    for q in range(SUB_STEPS):
+        low, high = _interior_extrema(g[q], g[q + 1], d[q] / SUB_STEPS, d[q + 1] / SUB_STEPS)
+        hidden = hidden | ((high - low > floor) & (low <= margin) & (high >= -margin))
+    resolved = modelled & (far | ~hidden)
+    ratio = allowed / jnp.where(misfit > 0, misfit, 1.0)
+    shrink = jnp.where(modelled, 0.25, jnp.clip(0.9 * jnp.sqrt(jnp.sqrt(ratio)), 0.1, 0.5))
+    return resolved, shrink
+
+
+def _interior_extrema(p0, p1, m0, m1):
+    """The local minimum and maximum of the cubic Hermite interpolant on [0, 1] with values
+    p0, p1 and slopes m0, m1, where it has both inside (0, 1); else (+inf, −inf)."""
+    # p'(u) = A u² + B u + C
+    A = 6 * (p0 - p1) + 3 * (m0 + m1)
+    B = -6 * (p0 - p1) - 4 * m0 - 2 * m1
+    C = m0
+    disc = B * B - 4 * A * C
+    ok = (A != 0) & (disc > 0)
+    root = jnp.sqrt(jnp.where(ok, disc, 0.0))
+    two_a = jnp.where(ok, 2 * A, 1.0)
+    u1, u2 = (-B - root) / two_a, (-B + root) / two_a
+    inside = ok & (u1 > 0) & (u1 < 1) & (u2 > 0) & (u2 < 1)
+
+    def p(u):
+        u2_, u3_ = u * u, u * u * u
+        return (
+            (2 * u3_ - 3 * u2_ + 1) * p0 + (u3_ - 2 * u2_ + u) * m0
+            + (-2 * u3_ + 3 * u2_) * p1 + (u3_ - u2_) * m1
+        )
+
+    v1, v2 = p(u1), p(u2)
+    low = jnp.where(inside, jnp.minimum(v1, v2), jnp.inf)
+    high = jnp.where(inside, jnp.maximum(v1, v2), -jnp.inf)
+    return low, high
+
+
 def is_candidate(ends: StepEnds):
     """Cheap test: may this step contain a contact for this surface?"""
     crossing = (ends.g_start > 0) & (ends.g_end <= 0)
@@ -119,8 +229,9 @@ class Contact(NamedTuple):
     touch: jax.Array  # bool: tangential within the floor (γ): the time is the minimum
 
 
-def locate(g, sa, sb, ends: StepEnds, restart, floor) -> Contact:
-    """Locate the first contact in the step, given that `is_candidate` said maybe."""
+def locate(g, sa, s_lo, s_hi, ends: StepEnds, restart, floor) -> Contact:
+    """Locate the first contact in the sub-interval [s_lo, s_hi] of the step from `sa`,
+    given that `is_candidate` said maybe (the restart guard is taken from `sa`)."""
     crossing, dip = is_candidate(ends)
     G = guarded(g, sa, restart)
 
@@ -130,17 +241,18 @@ def locate(g, sa, sb, ends: StepEnds, restart, floor) -> Contact:
 
     # Inactive lanes get an empty bracket, so they cost no iterations under vmap.
     _, t_min = bracketed_root(
-        neg_slope, jnp.where(dip, sa, sb), sb, -ends.slope_start, -ends.slope_end
+        neg_slope, jnp.where(dip, s_lo, s_hi), s_hi, -ends.slope_start, -ends.slope_end
     )
-    t_min = jnp.where(dip, t_min, sb)
+    t_min = jnp.where(dip, t_min, s_hi)
     g_min = jnp.where(dip, g(t_min), ends.g_end)
     # Contact iff the dip reaches within the floor of Φ = 0; within the floor either way
     # it is a touch (γ), so an exact tangency is reported the same whatever the last bits.
     dip_hits = dip & (g_min <= floor)
     touch = dip_hits & (g_min > -floor)
 
-    # 2. The crossing root of G, on [sa, sb] for crossings or [sa, t_min] for deep dips.
-    upper = jnp.where(dip, t_min, sb)
+    # 2. The crossing root of G, on [s_start, s_hi] for crossings or [s_start, t_min] for
+    # deep dips.
+    upper = jnp.where(dip, t_min, s_hi)
     G_upper = jnp.where(dip, jnp.minimum(G(upper), 0.0), ends.g_end)
     G_lower = jnp.where(ends.g_start > 0, ends.g_start, 1.0)
     deep = crossing | (dip_hits & ~touch)

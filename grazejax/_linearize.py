@@ -711,8 +711,9 @@ def classify_point(
 ) -> PointType:
     r"""Classify a point as α, β, γ (on Γ_i) or α′, β′, γ′ (on Γ̃_i = J_i(Γ_i)), paper §2.
 
-    - On the surface: |Φ_i(t, x)| within the contact floor of `simulate` (64 ulps of the
-      gap's scale) and `where_i` true on the closed piece.
+    - On the surface: |Φ_i(t, x)| within a few contact floors of `simulate` (64 ulps of
+      the gap's scale at 1 + ‖x‖∞; `POINT_SLACK` of them, for the round-off a logged
+      point carries from its flight) and `where_i` true on the closed piece.
     - On the boundary ∂Γ_i: `where_i` changes value within 1e-10·(1 + ‖x‖∞) of x in
       some coordinate direction; pieces without `where` have no boundary.
     - Tangential (γ): |∂Φ/∂t + ∇Φ·f| ≤ `rtol`·(|∇Φ|·|f| + |∂Φ/∂t|) + floor, or the

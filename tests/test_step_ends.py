@@ -13,7 +13,9 @@ import pytest
 
 import grazejax as gj
 from grazejax._events import LIFT_FRACTION, step_ends
-from grazejax._loop.detect import _at_fraction, _fraction_time, _rates_at_ends
+from grazejax._loop.gaps import at_fraction as _at_fraction
+from grazejax._loop.gaps import fraction_time as _fraction_time
+from grazejax._loop.gaps import rates_at_ends
 from grazejax._unrolled import UnrolledERK, unrollable
 
 EPS = float(np.finfo(np.float64).eps)
@@ -101,10 +103,7 @@ def test_rates_at_the_ends_are_the_field_at_the_states(name):
     interpolant's rates there to its accuracy."""
     sa, sb = jnp.float64(3.25), jnp.float64(3.25 + 0.37)
     interp, solver, y0, y1, k = _interpolation(SOLVERS[name], sa, sb, with_end=True)
-    ends = _rates_at_ends(
-        SimpleNamespace(solver=solver), SimpleNamespace(y=y0),
-        SimpleNamespace(sa=sa, sb=sb, y1=y1, interp=interp, stages=k),
-    )
+    ends = rates_at_ends(SimpleNamespace(solver=solver), y0, sa, sb, y1, k)
     for theta, s, y in ((0.0, sa, y0), (1.0, sb, y1)):
         s_end, y_end, rate = ends[theta]
         assert float(s_end) == float(s)
@@ -119,10 +118,7 @@ def test_rates_at_the_ends_need_an_fsal_stage():
     sa, sb = jnp.float64(0.0), jnp.float64(0.1)
     for name in ("Heun", "Kvaerno5"):
         interp, solver, y0, y1, k = _interpolation(SOLVERS[name], sa, sb, with_end=True)
-        ends = _rates_at_ends(
-            SimpleNamespace(solver=solver), SimpleNamespace(y=y0),
-            SimpleNamespace(sa=sa, sb=sb, y1=y1, interp=interp, stages=k),
-        )
+        ends = rates_at_ends(SimpleNamespace(solver=solver), y0, sa, sb, y1, k)
         assert ends == {}
 
 

@@ -4,6 +4,8 @@
 - `context.py`: `LoopContext`, what every lane of one configuration shares (pieces, clock,
   tolerances, solver, controller), and the per-surface tests built on it.
 - `step.py`: one solver step and the step-size controller's verdict on it.
+- `gaps.py`: every surface's gap along a step, sampled where the contact tests read it
+  (and whether those samples resolve it: else the step is retaken shorter).
 - `detect.py`: the search for a contact inside an accepted step.
 - `land.py`: the landing step: Newton correction of the event time, jumps, impact log.
 - `policies.py`: what happens at a Zeno accumulation or a sticking contact.

@@ -258,11 +258,12 @@ def deciding_step(ctx: LoopContext, c_in: LoopState, forced, slides: bool = True
     # keeps done = False so that it reports MAX_STEPS.
     out_of_steps = _out_of_steps(ctx, c_in)
     c = eqx.tree_at(lambda z: z.done, c_in, c_in.done | out_of_steps)
-    taken = take_step(ctx, c, slides, forced)
-    if landing and not under_vmap(c_in):
-        # A landing step searches nothing (`detect`'s `detecting` is false for it): known
-        # statically, the search is left out of the program (unbatched: under vmap the
-        # other lanes may not land).
+    # A landing step searches nothing (`detect`'s `detecting` is false for it): known
+    # statically, the search is left out of the program (unbatched: under vmap the other
+    # lanes may not land).
+    searches = not (landing and not under_vmap(c_in))
+    taken = take_step(ctx, c, slides, forced, search=searches)
+    if not searches:
         found = nothing_detected(ctx)
     else:
         found = detect(ctx, c, taken, slides)
@@ -299,7 +300,9 @@ def _next_state(ctx: LoopContext, c: LoopState, taken: Step, found: Detection,
 
     h_min_at, abs_time = ctx.h_min_at, ctx.abs_time
     reached_end = accept_free & (sb >= taken.s_end - h_min_at(abs_time(sb, c.t_hi, c.t_lo), c.time_scale))
-    underflow = reject & (h_next < h_min_at(abs_time(sa, c.t_hi, c.t_lo), c.time_scale))
+    # (NaN-safe: a field that is NaN at x0 gives the controller a NaN first step, and
+    # every later one; that ends here as NONFINITE, not in MAX_STEPS.)
+    underflow = reject & ~(h_next >= h_min_at(abs_time(sa, c.t_hi, c.t_lo), c.time_scale))
     fail_status = jnp.where(taken.finite, int(Status.STEP_SIZE_UNDERFLOW), int(Status.NONFINITE))
 
     def pick(a_free, a_land, a_goland, a_other):

@@ -13,6 +13,7 @@ from .._custom_types import BoolScalar, RealScalar, State
 from .._stepping import error_or_zero
 from .compact import if_any_lane
 from .context import LoopContext
+from .gaps import GapSamples, sample_gaps
 from .replay import decision, replay_decisions
 from .state import LoopState
 
@@ -31,13 +32,20 @@ class Step(NamedTuple):
     h_next: RealScalar
     solver_state: PyTree[Any]
     controller_state: PyTree[Any]
+    gaps: GapSamples | None  # the surfaces' gaps along the step, or None (not searched)
 
 
-def take_step(ctx: LoopContext, c: LoopState, slides: bool = True, forced=None) -> Step:
+def take_step(ctx: LoopContext, c: LoopState, slides: bool = True, forced=None,
+              search: bool = True) -> Step:
     """One solver step from c.s: to the located contact on a landing, else by c.h (never
     past t1). `slides=False`: no lane slides (the free field, no per-step test).
     `forced`: the decisions `(h_next, keep)` of this step in an earlier pass, to replay
-    (`replay.replay_decisions`), or None."""
+    (`replay.replay_decisions`), or None. `search=False`: the step is known to be a
+    landing (its gaps are not sampled).
+
+    A step the controller accepts is still retaken, shorter, where its samples do not
+    resolve a surface's gap (`_events.gap_resolution`): the contact tests would not be
+    complete on it."""
     solver, controller = ctx.solver, ctx.controller
     targs = (c.args, c.t_hi, c.t_lo, c.stick)
     s_end = ctx.s_end_of(c.t_hi, c.t_lo)
@@ -66,14 +74,21 @@ def take_step(ctx: LoopContext, c: LoopState, slides: bool = True, forced=None) 
         sa, sb, c.y, y1, targs, y_error, ctx.error_order, c.controller_state
     )
     finite1 = jnp.all(jnp.isfinite(y1))
-    # The step's decisions, replayed when reverse mode runs the step again (`replay.py`).
     keep = keep & finite1
     h_next = jax.lax.stop_gradient(tnext - jnp.where(keep, sb, sa))
-    h_next, keep = decision(replay_decisions((h_next, keep), forced))
     interp = solver.interpolation_cls(t0=sa, t1=sb, **dense_info)
     stages = dense_info.get("k")
+    gaps = None
+    if search and ctx.m > 0:
+        gaps = sample_gaps(ctx, c, sa, sb, y1, interp, stages)
+        retake = keep & ~gaps.resolved & ~c.landing & ~c.done
+        keep = keep & ~retake
+        h_next = jnp.where(retake, gaps.shrink * (sb - sa), h_next)
+    # The step's decisions, replayed when reverse mode runs the step again (`replay.py`).
+    h_next, keep = decision(replay_decisions((h_next, keep), forced))
     return Step(
-        sa, sb, s_end, y1, interp, stages, keep, finite1, h_next, solver_state1, controller_state1
+        sa, sb, s_end, y1, interp, stages, keep, finite1, h_next, solver_state1,
+        controller_state1, gaps,
     )
 
 

@@ -1,0 +1,74 @@
+"""Contacts inside one long step whose end slopes do not bracket a minimum (closed forms)."""
+
+import math
+
+import diffrax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import grazejax as gj
+
+SOLVERS = {"Tsit5": None, "Dopri5": diffrax.Dopri5(), "Dopri8": diffrax.Dopri8(), "Vern9": gj.Vern9()}
+T_HIT = math.acos(-0.99)  # 0.99 + cos(u) reaches 0 decreasing at u = arccos(−0.99)
+
+
+@pytest.mark.parametrize("tol", [1e-10, 1e-13])
+@pytest.mark.parametrize("name", sorted(SOLVERS))
+def test_a_curved_surface_crossed_by_long_exact_steps(name, tol):
+    """x' = 1 is exact for every step length, so the steps grow to several units and hold
+    several minima of Φ = 0.99 + cos x; the jump x → x − 1 brings each impact back. Exact:
+    impacts at arccos(−0.99) + k, six in [0, 9]."""
+    wall = gj.Surface(phi=lambda t, x, a: 0.99 + jnp.cos(x[0]), jump=lambda t, x, a: x - 1.0)
+    scene = gj.Scene(lambda t, x, a: jnp.ones_like(x), [wall])
+    sol = gj.simulate(scene, jnp.array([0.0]), 0.0, 9.0, None, solver=SOLVERS[name],
+                      rtol=tol, atol=tol)
+    assert gj.Status(int(sol.status)) == gj.Status.SUCCESS
+    assert int(sol.num_impacts) == 6
+    want = T_HIT + np.arange(6)
+    np.testing.assert_allclose(sol.impact_times[:6], want, rtol=0, atol=1e3 * tol * 9)
+
+
+@pytest.mark.parametrize("name", sorted(SOLVERS))
+def test_a_moving_wall_reaches_a_body_at_rest_inside_one_step(name):
+    """A body at rest (x' = 0, exact: the steps grow tenfold per step) and a wall
+    Φ = x + 0.99 + cos t that reaches it at t = arccos(−0.99), with end slopes of the long
+    step around it not (−, +). The jump x → x + 1 leaves Φ > 0 for ever: one impact."""
+    wall = gj.Surface(phi=lambda t, x, a: x[0] + 0.99 + jnp.cos(t),
+                      jump=lambda t, x, a: x + 1.0)
+    scene = gj.Scene(lambda t, x, a: jnp.zeros_like(x), [wall])
+    sol = gj.simulate(scene, jnp.array([0.0]), 0.0, 20.0, None, solver=SOLVERS[name],
+                      rtol=1e-10, atol=1e-10)
+    assert gj.Status(int(sol.status)) == gj.Status.SUCCESS
+    assert int(sol.num_impacts) == 1
+    assert abs(float(sol.impact_times[0]) - T_HIT) < 1e-8
+    np.testing.assert_allclose(sol.x_final, [1.0], rtol=0, atol=1e-12)
+
+
+def test_a_fast_wall_beside_a_slow_body_every_impact():
+    """A wall oscillating much faster than the body's flow (Φ = x − 0.3 sin(40 t), the
+    body x' = −0.05 drifting towards it from x = 0.5): the first contact is where
+    0.5 − 0.05 t = 0.3 sin(40 t) first holds, found on a fine grid and refined."""
+    wall = gj.Surface(phi=lambda t, x, a: x[0] - 0.3 * jnp.sin(40.0 * t),
+                      jump=lambda t, x, a: x + 1.0)
+    scene = gj.Scene(lambda t, x, a: jnp.full_like(x, -0.05), [wall])
+    sol = gj.simulate(scene, jnp.array([0.5]), 0.0, 10.0, None, solver=diffrax.Dopri8(),
+                      rtol=1e-10, atol=1e-10, max_impacts=1)
+    gap = lambda t: 0.5 - 0.05 * t - 0.3 * np.sin(40.0 * t)  # noqa: E731
+    grid = np.linspace(0.0, 10.0, 2_000_001)
+    first = np.argmax(gap(grid) <= 0)
+    from scipy.optimize import brentq
+
+    t_star = brentq(gap, grid[first - 1], grid[first], xtol=1e-15)
+    assert int(sol.num_impacts) == 1
+    assert abs(float(sol.impact_times[0]) - t_star) < 1e-8
+
+
+def test_a_field_nan_at_x0_is_nonfinite():
+    """Every step from x0 is NaN (the controller's first step too): NONFINITE at t0, not
+    MAX_STEPS after rejecting every step."""
+    floor = gj.Surface(phi=lambda t, x, a: x[0], jump=lambda t, x, a: x.at[1].set(-0.8 * x[1]))
+    scene = gj.Scene(lambda t, x, a: jnp.array([x[1], jnp.sqrt(x[0] - 1.0)]), [floor])
+    sol = gj.simulate(scene, jnp.array([0.5, 0.0]), 0.0, 1.0, None, max_steps=1000)
+    assert gj.Status(int(sol.status)) == gj.Status.NONFINITE
+    assert int(sol.num_steps) < 10 and float(sol.t_final) == 0.0
