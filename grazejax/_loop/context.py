@@ -157,7 +157,8 @@ class LoopContext(eqx.Module):
         as_mask = lambda v: jnp.array(v, dtype=bool).reshape((self.m,))  # noqa: E731
         return as_mask(restart), as_mask(stuck), as_mask(pushed)
 
-    def impenetrable_contact(self, t, s, t_hi, t_lo, x, args_, x_scale, step_ulps=None):
+    def impenetrable_contact(self, t, s, t_hi, t_lo, x, args_, x_scale, step_ulps=None,
+                             x_before=None):
         """State x at time t (local time s of the flight from t_hi + t_lo), over the
         impenetrable pieces: `(inside, resting)`.
 
@@ -167,7 +168,13 @@ class LoopContext(eqx.Module):
         SUCCESS); after a landing's jumps, a bad jump (a wall's jump that put the state
         under an impenetrable floor ran on with SUCCESS). `resting`: on one at rest,
         pushed in (tangential, g̈ < 0): sticking, as after a tangential restart
-        (`contact_tests`). `step_ulps`: the landing step's term of the floor."""
+        (`contact_tests`). `step_ulps`: the landing step's term of the floor.
+
+        `x_before`: after a landing, the event state before the jumps. It lies on its
+        surface only to the event's accuracy (a moving wall's event state sat 2e-11
+        inside), and a jump that does not move the gap (a restitution law on the
+        velocities) leaves the state there: inside is then *deeper* than the event
+        state, not merely below the floor."""
         inside_any = resting_any = jnp.array(False)
         for piece in self.pieces:
             if piece.check_jump_side:
@@ -179,7 +186,10 @@ class LoopContext(eqx.Module):
                 on = jnp.abs(g) <= floor
                 tangential = is_tangential(gd, gdd, floor)
                 entering = on & (gd < 0) & ~tangential
-                inside_any = inside_any | (((g < -floor) | entering) & in_piece)
+                depth = g
+                if x_before is not None:
+                    depth = g - jnp.minimum(piece.gap(t, x_before, args_), 0.0)
+                inside_any = inside_any | (((depth < -floor) | entering) & in_piece)
                 resting_any = resting_any | (on & tangential & (gdd < 0) & in_piece)
         return inside_any, resting_any
 

@@ -104,7 +104,8 @@ def _land(ctx: LoopContext, c: LoopState, y_star, sa, s_star):
     # tested as it is applied): the state after all of the landing's jumps, in the same
     # clock and scale as the tests above, so that the two share Φ, Φ̇, Φ̈.
     enters, _ = ctx.impenetrable_contact(t_event, jnp.zeros_like(t_event), t_event_hi,
-                                         t_event_lo, x_post, args_, x_scale, step_ulps)
+                                         t_event_lo, x_post, args_, x_scale, step_ulps,
+                                         x_before=y_event)
     bad_side = bad_side | (applied_any & enters)
     released = jnp.zeros((ctx.m,), bool)
     if ctx.sticky:
@@ -187,12 +188,13 @@ def _met_together(ctx: LoopContext, c: LoopState, t_event, y_event, flight_scale
     ulps apart) is hit now too if the state is on it and approaching it. Without this,
     the flight after the jump would start "on" it, moving in, and never impact.
 
-    Returns, per piece, (on it and inside its closed piece, on its boundary)."""
+    Returns, per piece, (on it and inside its closed piece, on its boundary, inside its
+    closed piece)."""
     near = []
     for i, piece in enumerate(ctx.pieces):
         on, _ = ctx.on_surface(piece, t_event, y_event, c.args, flight_scale, step_ulps)
         in_piece, on_boundary = piece.inside(t_event, y_event, c.args, ctx.state_tol)
-        near.append((on & in_piece & ~c.stick[i], on_boundary))
+        near.append((on & in_piece & ~c.stick[i], on_boundary, in_piece))
     return near
 
 
@@ -217,10 +219,15 @@ def _apply_jumps(ctx: LoopContext, c: LoopState, lands, s_event, t_event, y_even
             # `lands` folded in here so that the log is written row-wise only: a
             # whole-array select of the log every iteration dominated batched runs.
             # (a piece already pending on one side is not hit again on its other side)
-            hit = c.pending[i, k] | (near[i][0] & (gd < 0) & ~jnp.any(c.pending[i]))
+            # The search judged the piece (`where`) on the step's interpolant; the event
+            # state is the landing step's, which can lie outside a piece the interpolant
+            # was inside of (by 1e-6 on a long Dopri8 step): it is judged again here, and
+            # a contact outside the piece is no impact (the flight goes on through it).
+            pending = c.pending[i, k] & near[i][2]
+            hit = pending | (near[i][0] & (gd < 0) & ~jnp.any(c.pending[i]))
             apply = lands & hit & (~applied_any | approaching)
             x_new = piece.jump(t_event, x, args_)
-            on_boundary = jnp.where(c.pending[i, k], c.boundary[i, k], near[i][1])
+            on_boundary = jnp.where(pending, c.boundary[i, k], near[i][1])
             kind = jnp.where(
                 c.touch[i, k], int(impact_kinds[2]), jnp.where(on_boundary, int(impact_kinds[1]), int(impact_kinds[0]))
             )
@@ -232,7 +239,11 @@ def _apply_jumps(ctx: LoopContext, c: LoopState, lands, s_event, t_event, y_even
                     jax.lax.stop_gradient(gd)
                 )
                 moving_in = (gd_new < 0) & ~is_tangential(gd_new, gdd_new, floor)
-                bad_side = bad_side | (apply & ((g_new < -floor) | ((g_new <= floor) & moving_in)))
+                # Deeper than the event state itself (on the surface only to the event's
+                # accuracy; see `LoopContext.impenetrable_contact`).
+                g_event = sign * piece.gap(t_event, y_event, args_)
+                deeper = g_new - jnp.minimum(g_event, 0.0) < -floor
+                bad_side = bad_side | (apply & (deeper | ((g_new <= floor) & moving_in)))
             x = jnp.where(apply, x_new, x)
             count = count + apply
             applied_any = applied_any | apply
