@@ -1180,7 +1180,8 @@ def period_doubled_orbit(scene: Scene, point: SpecialPoint, args, *, epsilon: fl
     `fixed_period=False` for an autonomous orbit, default True).
 
     **Returns:** an [`grazejax.Orbit`][] (check `orbit.status`); continue it with
-    [`grazejax.continue_orbit`][] (the period-2 family).
+    [`grazejax.continue_orbit`][] (the period-2 family). Where every start converges to
+    the period-1 orbit run twice, that orbit with status `OrbitStatus.NOT_DOUBLED`.
     """
     if point.kind != "period-doubling" or point.eigenvector is None:
         raise ValueError("period_doubled_orbit needs a period-doubling SpecialPoint")
@@ -1203,6 +1204,9 @@ def period_doubled_orbit(scene: Scene, point: SpecialPoint, args, *, epsilon: fl
                          float(orbit.t0) + float(orbit.period) / 2, args)
         if np.max(np.abs(half - np.asarray(orbit.x0))) > 1e-6 * size:
             return orbit
+        last = eqx.tree_at(
+            lambda o: o.status, orbit, jnp.asarray(int(OrbitStatus.NOT_DOUBLED), orbit.status.dtype)
+        )
     return last
 
 

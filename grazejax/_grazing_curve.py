@@ -358,6 +358,8 @@ def continue_grazing(
         raise ValueError("need 0 < ds_min <= ds <= ds_max")
     if mu_start == mu_stop:
         raise ValueError("mu_start == mu_stop: nothing to continue")
+    if not isinstance(point, GrazingPoint | Orbit):
+        raise TypeError("point must be a grazejax.GrazingPoint or a grazejax.Orbit")
     orbit = point.orbit if isinstance(point, GrazingPoint) else point
     kw, settings, scale = _continuation_settings(orbit, rtol, atol, solver, newton_tol,
                                                  max_newton_steps)

@@ -115,6 +115,9 @@ class OrbitStatus(enum.IntEnum):
     """Newton converged, but the simulation's `atol` exceeds 10 × `rtol` × the orbit's size:
     the period map (and so the orbit and its multipliers) is only as accurate as
     atol / size, not `rtol`. Pass `atol=None` (scaled to the orbit) or a smaller `atol`."""
+    NOT_DOUBLED = 11
+    """`period_doubled_orbit` found only the period-1 orbit run twice from every start
+    (past the flip point on the wrong side, or too far from it)."""
 
     @property
     def message(self) -> str:
@@ -142,6 +145,9 @@ _MESSAGES = {
     OrbitStatus.LOOSE_ATOL: "atol is larger than 10·rtol times the orbit's size: the "
     "simulation controls its error in absolute terms only, so the orbit and its multipliers "
     "are not accurate to rtol; pass atol=None (scaled to the orbit) or a smaller atol",
+    OrbitStatus.NOT_DOUBLED: "every start converged to the period-1 orbit run twice: no "
+    "period-doubled orbit near the flip point at these args (try the other side of the "
+    "flip point, or args closer to it)",
 }
 
 

@@ -66,7 +66,8 @@ def _batch_size(x0s, args, args_batched):
     elif x0s.ndim != 1:
         raise ValueError(f"x0s must have shape (batch, n) or (n,), got {x0s.shape}")
     leaves = jax.tree.leaves(args) if args is not None else []
-    flags = jax.tree.leaves(args_batched) if args_batched is not None else []
+    # (no flags: no args leaf is batched)
+    flags = jax.tree.leaves(args_batched) if args_batched is not None else [False] * len(leaves)
     if args_batched is not None and len(flags) != len(leaves):
         raise ValueError("args_batched must have the structure of args (one bool per leaf)")
     for i, (leaf, batched) in enumerate(zip(leaves, flags, strict=True)):

@@ -5,8 +5,18 @@ from pathlib import Path
 
 import jax
 import pytest
+from hypothesis import settings
 
 jax.config.update("jax_enable_x64", True)
+
+# Property tests run the same examples on every run (derandomize: the seed is a hash of the
+# test), so that a default-job failure is reproducible and never a matter of luck. This
+# profile is the parent of every `@settings(...)` in the tests, which only set their example
+# counts and deadlines. `HYPOTHESIS_PROFILE=random` explores new examples (locally, or in
+# a scheduled job), with the same counts.
+settings.register_profile("derandomized", derandomize=True)
+settings.register_profile("random", derandomize=False)
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "derandomized"))
 
 # Compiling is most of the suite's time, and many tests compile the same program again: a
 # scene built afresh (`examples.ex1dof()` makes new closures, so `jit` misses) or a module
