@@ -13,22 +13,23 @@ re-trigger at the start". We test each accepted step for
 
 - a *crossing*: g(sa) > 0 >= g(sb);
 - a *dip*: g > 0 at both ends but ġ(sa) < 0 < ġ(sb), so g has an interior minimum; we
-  find it (root of ġ along the interpolant) and call it an impact when g_min <= 0.
+  find it (root of ġ along the interpolant) and call it an impact when g_min <= 0;
+- a *hump*: g <= 0 at both ends but ġ(sa) > 0 > ġ(sb): the flight rises out of Φ < 0 and
+  comes back down through Φ = 0 within the interval, an impact when g_max > 0.
 
 Both tests read only the ends of an interval, so they are complete only where g has at
 most one interior extremum there. A step is long where the *state* is easy to integrate,
 not where the gap is: a wall that oscillates (Φ = x − a sin ωt) or a curved surface crossed
 by a long step (Φ = r + cos x) puts several extrema of g inside one step, and a dip to
-Φ < 0 between end slopes that are not (−, +) went unseen. So every step is tested in
-`SUB_STEPS` equal sub-intervals, at the interpolant's values and slopes at their ends
-(`split_step_ends`), and is accepted only if those samples *resolve* the gap
-(`gap_resolution`): a cubic Hermite model of each half predicts the quarter points to
-within a fraction of the gap's variation or its round-off floor, and no sub-interval's
-model holds a pair of extrema that straddles Φ = 0. A step that fails is retaken shorter,
-as the step-size controller retakes an inaccurate one. Resolved steps of smooth flows
-pass at once (the model's error shrinks like h⁴): the test costs three more interpolant
-evaluations per surface per step; the root searches run only when some lane (under vmap)
-has a candidate.
+Φ < 0 between end slopes that are not (−, +) went unseen. So every step is tested in two
+halves, at the interpolant's value and slope at the midpoint (`split_step_ends`), and is
+accepted only if those samples *resolve* the gap (`gap_resolution`): each half's cubic
+Hermite model, checked at an irrational fraction of the half, keeps a half that no test
+flags clear of Φ = 0 by several times its error, and holds no pair of extrema that
+straddles Φ = 0. A step that fails is retaken shorter, as the step-size controller retakes
+an inaccurate one. Resolved steps of smooth flows pass at once (the model's error shrinks
+like h⁴): the test costs three more interpolant evaluations per step; the root searches
+run only when some lane (under vmap) has a candidate.
 """
 
 from typing import NamedTuple
@@ -40,15 +41,16 @@ from ._roots import bracketed_root, safe_divide
 
 # Where a restart step that leaves Φ = 0 tangentially is judged (see `step_ends`).
 LIFT_FRACTION = 2.0**-20
-# Every step's gap is sampled at the ends of this many equal sub-intervals (θ = j/4).
-# `gap_resolution` checks each half's cubic model at its midpoint, so it must be 4.
-SUB_STEPS = 4
-# A half's cubic model must predict its midpoint to this fraction of the gap's variation
-# over the step (or to the round-off floor) for the step to count as resolved.
-RESOLUTION = 0.125
-# A surface farther than this many times the gap's variation (plus the model's error)
-# from every sample cannot be reached within the step: its resolution is not asked for.
-FAR = 4.0
+# Each half's cubic model is checked at these fractions of the half: irrational, so that
+# a gap oscillating with a period that divides the step (a wall moving at ω with
+# h ≈ 2πk/ω) cannot agree with the model at every check point.
+CHECK_POINTS = (2.0**0.5 - 1.0, 0.5 * (5.0**0.5 - 1.0))
+# A half whose samples are all on one side of Φ = 0 and which no test flags must clear
+# Φ = 0 by this many times its model's error.
+CLEARANCE = 4.0
+# Every half's model must predict its check point to this fraction of the half's spread of
+# values (or to the floor): the shape of the gap, the number of its extrema, is resolved.
+SHAPE = 0.125
 
 
 class StepEnds(NamedTuple):
@@ -126,101 +128,135 @@ def step_ends(rate, sa, sb, restart, g_a, g_b) -> StepEnds:
     return StepEnds(g_start, g_b, slope_start, slope_b, jnp.where(lifting, s_lift, sa))
 
 
-def split_step_ends(ends: StepEnds, bounds, g, slope, restart) -> StepEnds:
-    """The `StepEnds` of the step's `SUB_STEPS` sub-intervals, each field an array [K].
-
-    `ends` are the whole step's (from `step_ends`: the restart guard and the lift-off
-    belong to the first sub-interval); `bounds` [K + 1] the sub-intervals' ends in local
-    time, `g` and `slope` [K + 1] the gap and its rate there (the entries at the step's
-    ends are not read). Interior values are guarded like the ends: on a restart step
-    G(s) = g(s)/(s − sa), which has g's sign.
+def split_step_ends(ends: StepEnds, s_mid, g_mid, slope_mid, sa, restart):
+    """The `StepEnds` of the step's two halves, given the gap `g_mid` and its rate
+    `slope_mid` at the step's midpoint `s_mid` (the restart guard and the lift-off belong
+    to the first half). The midpoint's value is guarded like the ends: on a restart step
+    G(s) = g(s)/(s − sa), which has g's sign. Scalars throughout: under `vmap` every array
+    op of a step is one more kernel in every lane's every step.
     """
-    sa = bounds[0]
-    inner_s, inner_g = bounds[1:-1], g[1:-1]
-    apart = inner_s > sa
-    inner_G = jnp.where(restart & apart, inner_g / jnp.where(apart, inner_s - sa, 1.0), inner_g)
-    inner_slope = slope[1:-1]
-    before = lambda first, inner: jnp.concatenate([jnp.reshape(first, (1,)), inner])  # noqa: E731
-    after = lambda inner, last: jnp.concatenate([inner, jnp.reshape(last, (1,))])  # noqa: E731
-    return StepEnds(
-        g_start=before(ends.g_start, inner_G),
-        g_end=after(inner_G, ends.g_end),
-        slope_start=before(ends.slope_start, inner_slope),
-        slope_end=after(inner_slope, ends.slope_end),
-        s_start=before(ends.s_start, inner_s),
-    )
+    apart = s_mid > sa
+    G_mid = jnp.where(restart & apart, g_mid / jnp.where(apart, s_mid - sa, 1.0), g_mid)
+    first = StepEnds(ends.g_start, G_mid, ends.slope_start, slope_mid, ends.s_start)
+    second = StepEnds(G_mid, ends.g_end, slope_mid, ends.slope_end, s_mid)
+    return first, second
 
 
-def gap_resolution(g, d, floor):
+def gap_resolution(g, d, checks, flagged, floor, restart):
     """Whether the samples of a step resolve its gap: `(resolved, shrink)`.
 
-    `g` [5] is the gap at θ = 0, ¼, ½, ¾, 1 and `d` [5] its slope in θ (h·ġ); `floor`
-    the gap's round-off floor. Two tests (module docstring):
+    `g` = (g(0), g(½), g(1)) is the gap at θ = 0, ½, 1 and `d` its slopes in θ (h·ġ);
+    `checks` the gap and its slope in θ at `CHECK_POINTS` of each half; `flagged` whether
+    each half's end tests (`is_candidate`) flag it; `floor` the gap's round-off floor;
+    `restart` whether the step starts on the surface (that root is known: the guard
+    excludes it, and so does the clearance of the first half). The model of each half is
+    the cubic Hermite interpolant of its ends' values and slopes. Per half:
 
-    - *the model is good*: each half's cubic Hermite interpolant (from its ends' values
-      and slopes) predicts the gap at the half's midpoint to within `RESOLUTION` of the
-      gap's variation over the step, or to the floor. A gap that oscillates within the
-      step fails it (the prediction is off by the oscillation), unless every sample is
-      `FAR` from Φ = 0 compared with the variation and the misfit.
-    - *no hidden pair of extrema*: no quarter's cubic model has a local maximum and a
-      local minimum inside it, deeper apart than the floor, that straddle Φ = 0 (within
-      the misfit). The end-slope tests cannot see a dip between such extrema (their end
-      slopes are (+, +) or (−, −)), and a crossing between them may have three roots.
+    - *its shape*: the model must predict the check point's value and slope to within
+      `SHAPE` of the half's spread of values and of slopes (or the floor). Then it has the
+      gap's extrema and, where it crosses Φ = 0 once, the gap does too: the end tests,
+      which find one extremum or one root per half, are complete. Value and slope: a gap
+      oscillating within the half cannot match both at a point (sin and cos do not
+      vanish together), whatever its period.
+    - *clear of the surface*: a half that is not flagged, with both ends on one side of
+      Φ = 0, must stay `CLEARANCE` model errors (plus the floor) away from it at its ends,
+      unless the model is exact to round-off. Its model has no interior minimum on the
+      free side (nor maximum inside Φ < 0), or it would be flagged or hold a pair (below),
+      so its ends are its closest points. The model's error is the larger of its value
+      misfit, its slope misfit / 8 and 1/16 of the whole step's cubic misfit at ½ (the
+      error shrinks like h⁴).
+    - *no hidden pair of extrema*: the model has no local maximum and minimum inside the
+      half, further apart than the floor, that straddle Φ = 0 within the model error. The
+      end tests cannot see a dip between such extrema (their end slopes are (+, +) or
+      (−, −)), and a crossing between them may have three roots.
 
-    `shrink` is the factor by which to retake the step: from the model's misfit
-    (which shrinks like h⁴) where the first test fails, else a quarter.
+    `shrink` is the factor by which to retake the step: from the misfits' h⁴ law, read
+    off in powers of two (no root in every step of every lane): 0.5 where at most 16
+    times too large, 0.25 to 256, else 0.1.
     """
-    misfit = jnp.maximum(
-        jnp.abs(g[1] - (0.5 * (g[0] + g[2]) + (d[0] - d[2]) / 16)),
-        jnp.abs(g[3] - (0.5 * (g[2] + g[4]) + (d[2] - d[4]) / 16)),
-    )
-    variation = jnp.max(g) - jnp.min(g)
-    far = jnp.min(jnp.abs(g)) > FAR * (variation + misfit)
-    allowed = jnp.maximum(RESOLUTION * variation, floor)
-    modelled = far | (misfit <= allowed)
-    margin = misfit + floor
-    hidden = jnp.array(False)
-    for q in range(SUB_STEPS):
-        low, high = _interior_extrema(g[q], g[q + 1], d[q] / SUB_STEPS, d[q + 1] / SUB_STEPS)
-        hidden = hidden | ((high - low > floor) & (low <= margin) & (high >= -margin))
-    resolved = modelled & (far | ~hidden)
-    ratio = allowed / jnp.where(misfit > 0, misfit, 1.0)
-    shrink = jnp.where(modelled, 0.25, jnp.clip(0.9 * jnp.sqrt(jnp.sqrt(ratio)), 0.1, 0.5))
+    g0, g_mid, g1 = g
+    d0, d_mid, d1 = d
+    mid_misfit = jnp.abs(g_mid - (0.5 * (g0 + g1) + (d0 - d1) / 8))
+    resolved = jnp.array(True)
+    worst = jnp.zeros_like(g0)  # the largest misfit / allowed ratio of a half
+    halves = ((g0, g_mid, d0, d_mid), (g_mid, g1, d_mid, d1))
+    for q, ((p0, p1, m0, m1), u, (value, slope), flag) in enumerate(
+        zip(halves, CHECK_POINTS, checks, flagged, strict=True)
+    ):
+        m0, m1, slope = 0.5 * m0, 0.5 * m1, 0.5 * slope  # slopes in the half's fraction
+        model, model_slope = _hermite(p0, p1, m0, m1, u)
+        value_misfit = jnp.abs(value - model)
+        slope_misfit = jnp.abs(slope - model_slope)
+        spread = jnp.maximum(jnp.maximum(p0, p1), value) - jnp.minimum(jnp.minimum(p0, p1), value)
+        slope_spread = jnp.maximum(jnp.maximum(jnp.abs(m0), jnp.abs(m1)), jnp.abs(p1 - p0))
+        shape_allowed = jnp.maximum(SHAPE * spread, floor)
+        slope_allowed = jnp.maximum(SHAPE * slope_spread, floor)
+        shaped = (value_misfit <= shape_allowed) & (slope_misfit <= slope_allowed)
+        error = jnp.maximum(jnp.maximum(value_misfit, slope_misfit / 8), mid_misfit / 16)
+        one_side = ((p0 > 0) & (p1 > 0)) | ((p0 < 0) & (p1 < 0))
+        distance = jnp.minimum(jnp.abs(p0), jnp.abs(p1))
+        if q == 0:
+            one_side = jnp.where(restart, p1 != 0, one_side)
+            distance = jnp.where(restart, jnp.abs(p1), distance)
+        needed = CLEARANCE * error + floor
+        clear = ~one_side | flag | (distance > needed) | (error <= floor)
+        hidden = _hidden_pair(p0, p1, m0, m1, error + floor, floor)
+        resolved = resolved & clear & shaped & ~hidden
+        ratio = jnp.maximum(
+            jnp.where(clear, 0.0, needed / jnp.maximum(distance, floor)),
+            jnp.where(shaped, 0.0, jnp.maximum(value_misfit / shape_allowed,
+                                               slope_misfit / slope_allowed)),
+        )
+        worst = jnp.maximum(worst, ratio)
+    shrink = jnp.where(worst <= 16, 0.5, jnp.where(worst <= 256, 0.25, 0.1))
     return resolved, shrink
 
 
-def _interior_extrema(p0, p1, m0, m1):
-    """The local minimum and maximum of the cubic Hermite interpolant on [0, 1] with values
-    p0, p1 and slopes m0, m1, where it has both inside (0, 1); else (+inf, −inf)."""
-    # p'(u) = A u² + B u + C
-    A = 6 * (p0 - p1) + 3 * (m0 + m1)
-    B = -6 * (p0 - p1) - 4 * m0 - 2 * m1
+def _hermite(p0, p1, m0, m1, u: float):
+    """The cubic Hermite interpolant with values p0, p1 and slopes m0, m1 on [0, 1], and
+    its slope, at the constant u."""
+    u2, u3 = u * u, u * u * u
+    value = (
+        (2 * u3 - 3 * u2 + 1) * p0 + (u3 - 2 * u2 + u) * m0 + (3 * u2 - 2 * u3) * p1
+        + (u3 - u2) * m1
+    )
+    slope = (6 * u2 - 6 * u) * (p0 - p1) + (3 * u2 - 4 * u + 1) * m0 + (3 * u2 - 2 * u) * m1
+    return value, slope
+
+
+def _hidden_pair(p0, p1, m0, m1, margin, floor):
+    """Whether the cubic Hermite interpolant on [0, 1] with values p0, p1 and slopes m0, m1
+    may hold a local maximum and minimum inside (0, 1) that straddle Φ = 0 within
+    `margin`, further apart than `floor`. Without divisions or roots: both critical
+    points are inside iff p'(u) = A u² + B u + C has a positive discriminant, its vertex
+    −B/2A in (0, 1) and p'(0), p'(1) of A's sign; the cubic's values lie within
+    b = max(|m0 − Δ|, |m1 − Δ|)/4 of the chord (Δ = p1 − p0), which bounds the extrema."""
+    delta = p1 - p0
+    A = 3 * (m0 + m1) - 6 * delta
+    B = 6 * delta - 4 * m0 - 2 * m1
     C = m0
-    disc = B * B - 4 * A * C
-    ok = (A != 0) & (disc > 0)
-    root = jnp.sqrt(jnp.where(ok, disc, 0.0))
-    two_a = jnp.where(ok, 2 * A, 1.0)
-    u1, u2 = (-B - root) / two_a, (-B + root) / two_a
-    inside = ok & (u1 > 0) & (u1 < 1) & (u2 > 0) & (u2 < 1)
-
-    def p(u):
-        u2_, u3_ = u * u, u * u * u
-        return (
-            (2 * u3_ - 3 * u2_ + 1) * p0 + (u3_ - 2 * u2_ + u) * m0
-            + (-2 * u3_ + 3 * u2_) * p1 + (u3_ - u2_) * m1
-        )
-
-    v1, v2 = p(u1), p(u2)
-    low = jnp.where(inside, jnp.minimum(v1, v2), jnp.inf)
-    high = jnp.where(inside, jnp.maximum(v1, v2), -jnp.inf)
-    return low, high
+    pair = (
+        (B * B > 4 * A * C) & (A * B < 0) & (jnp.abs(B) < 2 * jnp.abs(A))
+        & (A * C > 0) & (A * (A + B + C) > 0)
+    )
+    bound = 0.25 * jnp.maximum(jnp.abs(m0 - delta), jnp.abs(m1 - delta))
+    low = jnp.minimum(p0, p1) - bound
+    high = jnp.maximum(p0, p1) + bound
+    return pair & (2 * bound > floor) & (low <= margin) & (high >= -margin)
 
 
 def is_candidate(ends: StepEnds):
-    """Cheap test: may this step contain a contact for this surface?"""
+    """Cheap test: may this interval contain a contact for this surface? `(crossing, dip,
+    hump)`. With at most one interior extremum of g (what `gap_resolution` asks of each
+    half of a step) these are all the ways to reach Φ = 0 from above: a sign change from
+    + to −; a minimum between end slopes (−, +) from above; or a maximum between end slopes
+    (+, −) from below, which leaves Φ < 0 and comes back down through Φ = 0."""
     crossing = (ends.g_start > 0) & (ends.g_end <= 0)
     dip = (ends.g_start > 0) & (ends.g_end > 0) & (ends.slope_start < 0) & (ends.slope_end > 0)
-    return crossing, dip
+    hump = (
+        (ends.g_start <= 0) & (ends.g_end <= 0) & (ends.slope_start > 0) & (ends.slope_end < 0)
+    )
+    return crossing, dip, hump
 
 
 class Contact(NamedTuple):
@@ -232,32 +268,41 @@ class Contact(NamedTuple):
 def locate(g, sa, s_lo, s_hi, ends: StepEnds, restart, floor) -> Contact:
     """Locate the first contact in the sub-interval [s_lo, s_hi] of the step from `sa`,
     given that `is_candidate` said maybe (the restart guard is taken from `sa`)."""
-    crossing, dip = is_candidate(ends)
+    crossing, dip, hump = is_candidate(ends)
     G = guarded(g, sa, restart)
+    extremum = dip | hump
 
-    # 1. The interior minimum of g, for dips: root of ġ, which goes from < 0 to > 0.
-    def neg_slope(s):
-        return -jax.jvp(g, (s,), (jnp.ones_like(s),))[1]
+    # 1. The interior extremum of g, for dips and humps: the root of ∓ġ, which goes from
+    # > 0 to <= 0 (−ġ for a minimum, ġ for a maximum).
+    direction = jnp.where(hump, 1.0, -1.0)
+
+    def signed_slope(s):
+        return direction * jax.jvp(g, (s,), (jnp.ones_like(s),))[1]
 
     # Inactive lanes get an empty bracket, so they cost no iterations under vmap.
-    _, t_min = bracketed_root(
-        neg_slope, jnp.where(dip, s_lo, s_hi), s_hi, -ends.slope_start, -ends.slope_end
+    _, t_ext = bracketed_root(
+        signed_slope, jnp.where(extremum, s_lo, s_hi), s_hi, direction * ends.slope_start,
+        direction * ends.slope_end,
     )
-    t_min = jnp.where(dip, t_min, s_hi)
-    g_min = jnp.where(dip, g(t_min), ends.g_end)
-    # Contact iff the dip reaches within the floor of Φ = 0; within the floor either way
-    # it is a touch (γ), so an exact tangency is reported the same whatever the last bits.
-    dip_hits = dip & (g_min <= floor)
-    touch = dip_hits & (g_min > -floor)
+    t_ext = jnp.where(extremum, t_ext, s_hi)
+    g_ext = jnp.where(extremum, g(t_ext), ends.g_end)
+    # A dip is a contact iff it reaches within the floor of Φ = 0; within the floor either
+    # way it is a touch (γ), so an exact tangency is reported the same whatever the last
+    # bits. A hump is one iff it rises above the floor: it then comes back down through
+    # Φ = 0 (a touch from below never enters the free side).
+    dip_hits = dip & (g_ext <= floor)
+    touch = dip_hits & (g_ext > -floor)
+    hump_hits = hump & (g_ext > floor)
 
-    # 2. The crossing root of G, on [s_start, s_hi] for crossings or [s_start, t_min] for
-    # deep dips.
-    upper = jnp.where(dip, t_min, s_hi)
+    # 2. The crossing root of G: on [s_start, s_hi] for crossings, [s_start, t_ext] for
+    # deep dips, [t_ext, s_hi] for humps.
+    lower = jnp.where(hump, t_ext, ends.s_start)
+    upper = jnp.where(dip, t_ext, s_hi)
     G_upper = jnp.where(dip, jnp.minimum(G(upper), 0.0), ends.g_end)
-    G_lower = jnp.where(ends.g_start > 0, ends.g_start, 1.0)
-    deep = crossing | (dip_hits & ~touch)
-    _, t_cross = bracketed_root(G, jnp.where(deep, ends.s_start, upper), upper, G_lower, G_upper)
+    G_lower = jnp.where(hump, G(t_ext), jnp.where(ends.g_start > 0, ends.g_start, 1.0))
+    deep = crossing | (dip_hits & ~touch) | hump_hits
+    _, t_cross = bracketed_root(G, jnp.where(deep, lower, upper), upper, G_lower, G_upper)
 
-    found = crossing | dip_hits
-    time = jnp.where(touch, t_min, t_cross)
+    found = crossing | dip_hits | hump_hits
+    time = jnp.where(touch, t_ext, t_cross)
     return Contact(found, time, touch)

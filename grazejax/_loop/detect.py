@@ -11,9 +11,10 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool
 
 from .._custom_types import BoolScalar, RealScalar
-from .._events import Contact, StepEnds, is_candidate, locate
+from .._events import Contact, locate
 from .compact import per_lane
 from .context import LoopContext
+from .gaps import step_floor
 from .policies import locate_release
 from .state import LoopState
 from .step import Step
@@ -37,11 +38,11 @@ def detect(ctx: LoopContext, c: LoopState, step: Step, slides: bool = True) -> D
     detecting = step.keep & ~c.landing & ~c.done
     if ctx.m > 0:
         gaps = step.gaps
-        candidate = detecting & jnp.any(gaps.candidate)
+        candidate = detecting & gaps.any_candidate
         # Only the lanes with a candidate pay for the searches under vmap (`compact.py`).
         inputs = SearchInputs(
-            step.interp, c.args, c.t_hi, c.t_lo, c.restart, gaps.ends, gaps.bounds,
-            gaps.floors, gaps.candidate,
+            step.interp, step.y1, c.args, c.t_hi, c.t_lo, c.restart, c.flight_scale,
+            gaps.ends, gaps.bounds, gaps.candidate,
         )
         found, times, touch, boundary = per_lane(
             functools.partial(_search, ctx), candidate, inputs,
@@ -80,14 +81,15 @@ class SearchInputs(NamedTuple):
     sampled gaps (`gaps.GapSamples`)."""
 
     interp: Any  # the step's dense output
+    y1: Array  # the step's end state
     args: Any
     t_hi: RealScalar
     t_lo: RealScalar
     restart: Bool[Array, " m"]
-    ends: tuple  # per piece, per side: `StepEnds` of the sub-intervals, fields [K]
-    bounds: Array  # [K + 1] the sub-intervals' ends
-    floors: Array  # [m, signs] each gap's floor over the step
-    candidate: Bool[Array, "m signs"]
+    flight_scale: Array
+    ends: tuple  # per piece, per side: the halves' `StepEnds`
+    bounds: tuple  # (sa, midpoint, sb)
+    candidate: tuple  # per piece, per side, per half: it may hold a contact
 
 
 def _search(ctx: LoopContext, inputs: SearchInputs):
@@ -101,15 +103,18 @@ def _search(ctx: LoopContext, inputs: SearchInputs):
     touch = jnp.zeros(mask_shape, bool)
     boundary = jnp.zeros(mask_shape, bool)
     for i, piece in enumerate(ctx.pieces):
-        for k, (sign, e) in enumerate(zip(piece.signs, inputs.ends[i], strict=True)):
+        for k, (sign, halves) in enumerate(zip(piece.signs, inputs.ends[i], strict=True)):
             g = ctx.gap_along(piece, sign, y_of, t_hi, t_lo, args_)
 
             def inside(s, piece=piece):
                 return piece.inside(ctx.abs_time(s, t_hi, t_lo), y_of(s), args_, ctx.state_tol)
 
+            sa, _, sb = inputs.bounds
+            floor = step_floor(ctx, piece, t_hi, t_lo, args_, inputs.flight_scale, sa, sb,
+                               inputs.y1, halves[0].slope_start, halves[1].slope_end)
             contact, on_boundary = _first_contact(
-                g, inside, e, inputs.bounds, inputs.restart[i], inputs.floors[i, k],
-                inputs.candidate[i, k],
+                g, inside, halves, inputs.bounds, inputs.restart[i], floor,
+                inputs.candidate[i][k],
             )
             found = found.at[i, k].set(contact.found)
             times = times.at[i, k].set(jnp.where(contact.found, contact.time, jnp.inf))
@@ -118,34 +123,37 @@ def _search(ctx: LoopContext, inputs: SearchInputs):
     return found, times, touch, boundary
 
 
-def _first_contact(g, inside, ends: StepEnds, bounds, restart, floor, candidate):
-    """The first contact inside the piece, over the step's sub-intervals in time order:
-    `(Contact, on ∂Γ)`. Only sub-intervals that `is_candidate` flags are searched (a dip
-    that stays above the floor, or a contact outside the piece, moves on to the next)."""
-    crossing, dip = is_candidate(ends)
-    flagged = (crossing | dip) & candidate
-    num = flagged.shape[0]
-    index = jnp.arange(num)
+def _first_contact(g, inside, halves, bounds, restart, floor, flags):
+    """The first contact inside the piece, over the step's halves in time order:
+    `(Contact, on ∂Γ)`. A half that `is_candidate` did not flag is not searched; a dip
+    that stays above the floor, or a contact outside the piece, moves on to the second.
+    (One copy of `locate` in a loop of at most two rounds, not two copies: its root
+    searches are the largest part of the program.)"""
+    first_flag, second_flag = flags
+    sa, s_mid, sb = bounds
 
-    def next_flagged(after):
-        return jnp.min(jnp.where(flagged & (index > after), index, num))
+    def pick(j, first, second):
+        return jax.tree.map(lambda a, b: jnp.where(j == 0, a, b), first, second)
 
     def searching(carry):
         j, contact, _ = carry
-        return (j < num) & ~contact.found
+        return (j < 2) & ~contact.found
 
     def search(carry):
         j, _, _ = carry
-        e = jax.tree.map(lambda a: a[j], ends)
-        contact = locate(g, bounds[0], bounds[j], bounds[j + 1], e, restart, floor)
+        e = pick(j, *halves)
+        s_lo, s_hi = jnp.where(j == 0, sa, s_mid), jnp.where(j == 0, s_mid, sb)
+        contact = locate(g, sa, s_lo, s_hi, e, restart, floor)
         in_piece, on_boundary = inside(contact.time)
         contact = contact._replace(found=contact.found & in_piece)
-        return next_flagged(j), contact, on_boundary
+        after = jnp.where((j == 0) & second_flag, 1, 2)
+        return after, contact, on_boundary
 
     no = jnp.array(False)
-    nothing = Contact(no, bounds[-1], no)
-    j, contact, on_boundary = lax.while_loop(searching, search, (next_flagged(-1), nothing, no))
-    del j
+    start = jnp.where(first_flag, 0, jnp.where(second_flag, 1, 2))
+    _, contact, on_boundary = lax.while_loop(
+        searching, search, (start, Contact(no, sb, no), no)
+    )
     return contact, on_boundary
 
 

@@ -1,116 +1,147 @@
 """Every surface's gap along a step just taken, sampled where the contact tests read it.
 
-The tests themselves (`_events.py`) work on values and slopes of the gap at the ends of the
-step's `SUB_STEPS` sub-intervals; this module evaluates them on the step's dense output,
+The tests themselves (`_events.py`) work on values and slopes of the gap at the step's ends
+and its midpoint; this module evaluates them on the step's dense output,
 once per step, for the step-size verdict (`step.py`: an unresolved gap retakes the step)
 and for the in-step search (`detect.py`).
 """
 
-from typing import NamedTuple
+import functools
+import operator
+from typing import Any, NamedTuple
 
 import equinox as eqx
+import equinox.internal as eqxi
 import jax
+import jax.lax as lax
 import jax.numpy as jnp
-from jaxtyping import Array, Bool, Float
 
 from .._custom_types import BoolScalar, RealScalar
-from .._events import SUB_STEPS, gap_resolution, is_candidate, split_step_ends, step_ends
+from .._events import CHECK_POINTS, gap_resolution, is_candidate, split_step_ends, step_ends
 from .._geometry import FLOOR_ULPS
 from .._roots import safe_divide
 from .context import LoopContext
 from .state import LoopState
 
-_INTERIOR = tuple(j / SUB_STEPS for j in range(1, SUB_STEPS))
+# The check points of the halves' models, as fractions of the step.
+_CHECK_FRACTIONS = (0.5 * CHECK_POINTS[0], 0.5 + 0.5 * CHECK_POINTS[1])
 
 
 class GapSamples(NamedTuple):
-    """The gap of every piece and side along one step."""
+    """The gap of every piece and side along one step (scalars per lane: under `vmap`
+    every array op of a step is one more kernel in every lane's every step)."""
 
-    # per piece, per side: the `StepEnds` of the sub-intervals (each field an array [K])
+    # per piece, per side: the two halves' `StepEnds`
     ends: tuple
-    bounds: Float[Array, " K1"]  # the sub-intervals' ends in local time (sa, …, sb)
-    floors: Float[Array, "m signs"]  # each gap's round-off floor over the step
+    bounds: tuple  # (sa, midpoint, sb) in local time
     resolved: BoolScalar  # the samples resolve every gap (`gap_resolution`)
     shrink: RealScalar  # where not: the factor by which to retake the step
-    candidate: Bool[Array, "m signs"]  # a sub-interval may hold a contact (`is_candidate`)
+    candidate: tuple  # per piece, per side, per half: it may hold a contact (`is_candidate`)
+    any_candidate: BoolScalar
 
 
-def sample_gaps(ctx: LoopContext, c: LoopState, sa, sb, y1, interp, stages) -> GapSamples:
-    """Sample each piece's gap on the step [sa, sb] from `c.y` to `y1`."""
-    args_ = c.args
-    along = at_fraction(interp)
-    at_ends = rates_at_ends(ctx, c.y, sa, sb, y1, stages)
-    h = sb - sa
-    bounds = jnp.stack([sa] + [fraction_time(theta, sa, sb) for theta in _INTERIOR] + [sb])
-    x_scale = jnp.maximum(c.flight_scale, jnp.abs(y1))
-    floor_base = []
-    for piece in ctx.pieces:
-        floor_base.append(piece.floor(ctx.abs_time(sb, c.t_hi, c.t_lo), y1, args_, x_scale))
-    ends, floors = [], []
-    resolved = jnp.array(True)
+def sample_gaps(ctx: LoopContext, c: LoopState, sa, sb, y1, interp, stages, *,
+                batched: bool = False, checking=True) -> GapSamples:
+    """Sample each piece's gap on the step [sa, sb] from `c.y` to `y1`.
+
+    `batched`: the verdict `resolved` is computed inside a `cond` on some lane
+    `checking` it. Its arithmetic is light, but XLA's CPU fusion copies it into every
+    consumer of the step's decision (each field of the next state), and under `vmap` each
+    copy runs over the whole batch; a conditional's results are computed once.
+    """
+    step = _StepView(c, sa, sb, fraction_time(0.5, sa, sb), y1, at_fraction(interp),
+                     rates_at_ends(ctx, c.y, sa, sb, y1, stages))
+    ends, candidates = [], []
+    resolved, any_candidate = jnp.array(True), jnp.array(False)
     shrink = jnp.ones((), ctx.dtype)
     for i, piece in enumerate(ctx.pieces):
-        row, floor_row = [], []
+        row, candidate_row = [], []
         for sign in piece.signs:
-
-            def gap(s, y, piece=piece, sign=sign):
-                return sign * piece.gap(ctx.abs_time(s, c.t_hi, c.t_lo), y, args_)
-
-            def rate(theta, gap=gap):
-                s, y, dy_ds = at_ends[theta] if theta in at_ends else along(theta, sa, sb)
-                return jax.jvp(gap, (s, y), (jnp.ones_like(s), dy_ds))
-
-            g_a, g_b = gap(sa, c.y), gap(sb, y1)
-            whole = step_ends(rate, sa, sb, c.restart[i], g_a, g_b)
-            inner = [rate(theta) for theta in _INTERIOR]
-            g = jnp.stack([g_a] + [v for v, _ in inner] + [g_b])
-            slope = jnp.stack([whole.slope_start] + [r for _, r in inner] + [whole.slope_end])
-            # Round-off of a step also grows with its length: add h·max|ġ| (a long step
-            # of an exactly integrated flow carries ~100s of ulps).
-            step_term = FLOOR_ULPS * ctx.eps * h * jnp.maximum(
-                jnp.abs(whole.slope_start), jnp.abs(whole.slope_end)
-            )
-            floor = floor_base[i] + jax.lax.stop_gradient(step_term)
-            ok, factor = gap_resolution(g, h * slope, floor)
-            # (a sliding state is on its surface: no contact with it is searched for; a
-            # gap that is not finite along the step, as an image surface's far from it
-            # through a Newton inverse, has no contact to resolve)
-            defined = jnp.all(jnp.isfinite(g)) & jnp.all(jnp.isfinite(slope))
-            ok = ok | c.stick[i] | ~defined
+            halves, flagged, verdict = _sample_one(ctx, step, i, piece, sign)
+            if batched:
+                ok, factor = lax.cond(
+                    eqxi.unvmap_any(checking), verdict,
+                    lambda: (jnp.array(True), jnp.array(1.0, ctx.dtype)),
+                )
+            else:
+                ok, factor = verdict()
+            # (a sliding state is on its surface: no contact with it is searched for)
+            ok = ok | c.stick[i]
             resolved = resolved & ok
             shrink = jnp.minimum(shrink, jnp.where(ok, 1.0, factor))
-            row.append(split_step_ends(whole, bounds, g, slope, c.restart[i]))
-            floor_row.append(floor)
+            flagged = tuple(flag & ~c.stick[i] for flag in flagged)
+            any_candidate = any_candidate | flagged[0] | flagged[1]
+            row.append(halves)
+            candidate_row.append(flagged)
         ends.append(tuple(row))
-        floors.append(floor_row)
-    candidate = _candidates(ctx, c, ends)
-    floors_ = _as_mask(ctx, floors, jnp.inf)
+        candidates.append(tuple(candidate_row))
     return GapSamples(
-        tuple(ends), bounds, floors_, jax.lax.stop_gradient(resolved),
-        jax.lax.stop_gradient(shrink), candidate,
+        tuple(ends), (sa, step.s_mid, sb), jax.lax.stop_gradient(resolved),
+        jax.lax.stop_gradient(shrink), tuple(candidates), any_candidate,
     )
 
 
-def _candidates(ctx: LoopContext, c: LoopState, ends):
-    rows = []
-    for i, row in enumerate(ends):
-        flags = []
-        for e in row:
-            crossing, dip = is_candidate(e)
-            flags.append(jnp.any(crossing | dip) & ~c.stick[i])
-        rows.append(flags)
-    return _as_mask(ctx, rows, False)
+class _StepView(NamedTuple):
+    """What sampling one surface's gap on a step reads."""
+
+    c: LoopState
+    sa: RealScalar
+    sb: RealScalar
+    s_mid: RealScalar
+    y1: Any
+    along: Any  # `at_fraction` of the step's dense output
+    at_ends: dict  # `rates_at_ends`
 
 
-def _as_mask(ctx: LoopContext, rows, fill):
-    """Per piece, per side values as an [m, max_signs] array (`fill` where a piece has
-    fewer sides)."""
-    if ctx.m == 0:
-        return jnp.full(ctx.mask_shape, fill)
-    return jnp.stack([
-        jnp.stack(list(row) + [jnp.full_like(row[0], fill)] * (ctx.max_signs - len(row)))
-        for row in rows
-    ])
+def _sample_one(ctx: LoopContext, step: _StepView, i: int, piece, sign):
+    """One piece's side: `(halves, flags, verdict)`, the halves' `StepEnds`, whether an end
+    test flags each half, and the resolution verdict as a function (`gap_resolution`'s
+    `(resolved, shrink)`), so the caller may compute it under a `cond`."""
+    c, sa, sb, h = step.c, step.sa, step.sb, step.sb - step.sa
+
+    def gap(s, y):
+        return sign * piece.gap(ctx.abs_time(s, c.t_hi, c.t_lo), y, c.args)
+
+    def rate(theta):
+        at_ends = step.at_ends
+        s, y, dy_ds = at_ends[theta] if theta in at_ends else step.along(theta, sa, sb)
+        return jax.jvp(gap, (s, y), (jnp.ones_like(s), dy_ds))
+
+    g_a, g_b = gap(sa, c.y), gap(sb, step.y1)
+    whole = step_ends(rate, sa, sb, c.restart[i], g_a, g_b)
+    g_mid, slope_mid = rate(0.5)
+    halves = split_step_ends(whole, step.s_mid, g_mid, slope_mid, sa, c.restart[i])
+    flags = []
+    for e in halves:
+        crossing, dip, hump = is_candidate(e)
+        flags.append(crossing | dip | hump)
+    slopes = (whole.slope_start, slope_mid, whole.slope_end)
+    # A gap that is not finite along the step (an image surface's far from it, through a
+    # Newton inverse) has no contact to resolve.
+    defined = functools.reduce(operator.and_, map(jnp.isfinite, (g_a, g_mid, g_b, *slopes)))
+
+    def verdict():
+        checks = tuple((value, h * slope) for value, slope in map(rate, _CHECK_FRACTIONS))
+        floor = step_floor(ctx, piece, c.t_hi, c.t_lo, c.args, c.flight_scale, sa, sb,
+                           step.y1, slopes[0], slopes[-1])
+        ok, factor = gap_resolution((g_a, g_mid, g_b), tuple(h * r for r in slopes), checks,
+                                    tuple(flags), floor, c.restart[i])
+        return ok | ~defined, factor
+
+    return halves, tuple(flags), verdict
+
+
+def step_floor(ctx: LoopContext, piece, t_hi, t_lo, args_, flight_scale, sa, sb, y1,
+               slope_start, slope_end):
+    """A gap's round-off floor over the step [sa, sb] (`Piece.floor` at its end state, with
+    the flight's magnitudes), plus h·max|ġ|: round-off of a step also grows with its
+    length (a long step of an exactly integrated flow carries ~100s of ulps)."""
+    x_scale = jnp.maximum(flight_scale, jnp.abs(y1))
+    step_term = FLOOR_ULPS * ctx.eps * (sb - sa) * jnp.maximum(
+        jnp.abs(slope_start), jnp.abs(slope_end)
+    )
+    floor = piece.floor(ctx.abs_time(sb, t_hi, t_lo), y1, args_, x_scale)
+    return floor + jax.lax.stop_gradient(step_term)
 
 
 def rates_at_ends(ctx: LoopContext, y0, sa, sb, y1, stages):

@@ -80,8 +80,10 @@ def take_step(ctx: LoopContext, c: LoopState, slides: bool = True, forced=None,
     stages = dense_info.get("k")
     gaps = None
     if search and ctx.m > 0:
-        gaps = sample_gaps(ctx, c, sa, sb, y1, interp, stages)
-        retake = keep & ~gaps.resolved & ~c.landing & ~c.done
+        checking = keep & ~c.landing & ~c.done
+        gaps = sample_gaps(ctx, c, sa, sb, y1, interp, stages, batched=ctx.batched,
+                           checking=checking)
+        retake = checking & ~gaps.resolved
         keep = keep & ~retake
         h_next = jnp.where(retake, gaps.shrink * (sb - sa), h_next)
     # The step's decisions, replayed when reverse mode runs the step again (`replay.py`).

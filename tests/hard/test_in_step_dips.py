@@ -45,6 +45,20 @@ def test_a_moving_wall_reaches_a_body_at_rest_inside_one_step(name):
     np.testing.assert_allclose(sol.x_final, [1.0], rtol=0, atol=1e-12)
 
 
+@pytest.mark.parametrize("name", sorted(SOLVERS))
+def test_a_hump_out_of_the_surface_and_back_inside_one_step(name):
+    """The mirror of a dip: from Φ = cos x − 0.99 < 0 (x0 = π) under the exact x' = 1, the
+    gap rises above 0 only for x ∈ 2π ∓ arccos(0.99) and comes back down through Φ = 0:
+    an impact at t = π + arccos(0.99), inside one long step whose ends are both in Φ < 0
+    with end slopes (+, −)."""
+    wall = gj.Surface(phi=lambda t, x, a: jnp.cos(x[0]) - 0.99, jump=lambda t, x, a: x + 2.0)
+    scene = gj.Scene(lambda t, x, a: jnp.ones_like(x), [wall])
+    sol = gj.simulate(scene, jnp.array([math.pi]), 0.0, 9.0, None, solver=SOLVERS[name],
+                      rtol=1e-10, atol=1e-10, max_impacts=1)
+    assert gj.Status(int(sol.status)) == gj.Status.MAX_IMPACTS
+    assert abs(float(sol.impact_times[0]) - (math.pi + math.acos(0.99))) < 1e-8
+
+
 def test_a_fast_wall_beside_a_slow_body_every_impact():
     """A wall oscillating much faster than the body's flow (Φ = x − 0.3 sin(40 t), the
     body x' = −0.05 drifting towards it from x = 0.5): the first contact is where
