@@ -17,7 +17,14 @@ import jax.lax as lax
 import jax.numpy as jnp
 
 from .._custom_types import BoolScalar, RealScalar
-from .._events import CHECK_POINTS, gap_resolution, is_candidate, split_step_ends, step_ends
+from .._events import (
+    CHECK_POINTS,
+    LIFT_FRACTION,
+    gap_resolution,
+    is_candidate,
+    split_step_ends,
+    step_ends,
+)
 from .._geometry import FLOOR_ULPS
 from .._roots import safe_divide
 from .context import LoopContext
@@ -25,6 +32,8 @@ from .state import LoopState
 
 # The check points of the halves' models, as fractions of the step.
 _CHECK_FRACTIONS = (0.5 * CHECK_POINTS[0], 0.5 + 0.5 * CHECK_POINTS[1])
+# Every fraction of a step at which the tests read the gap.
+_FRACTIONS = (0.0, LIFT_FRACTION, _CHECK_FRACTIONS[0], 0.5, _CHECK_FRACTIONS[1], 1.0)
 
 
 class GapSamples(NamedTuple):
@@ -44,13 +53,21 @@ def sample_gaps(ctx: LoopContext, c: LoopState, sa, sb, y1, interp, stages, *,
                 batched: bool = False, checking=True) -> GapSamples:
     """Sample each piece's gap on the step [sa, sb] from `c.y` to `y1`.
 
-    `batched`: the verdict `resolved` is computed inside a `cond` on some lane
-    `checking` it. Its arithmetic is light, but XLA's CPU fusion copies it into every
-    consumer of the step's decision (each field of the next state), and under `vmap` each
-    copy runs over the whole batch; a conditional's results are computed once.
+    `batched` (the loop runs under `vmap`): the verdict `resolved` is computed inside a
+    `cond` on some lane `checking` it, and the dense output is evaluated at every fraction
+    in one contraction. The verdict's arithmetic is light, but XLA's CPU fusion copies it
+    into every consumer of the step's decision (each field of the next state), and under
+    `vmap` each copy runs over the whole batch; a conditional's results are computed once.
+    A single run does better without either (a conditional and a batched contraction are
+    kernels of their own at every step).
     """
-    step = _StepView(c, sa, sb, fraction_time(0.5, sa, sb), y1, at_fraction(interp),
-                     rates_at_ends(ctx, c.y, sa, sb, y1, stages))
+    at = rates_at_ends(ctx, c.y, sa, sb, y1, stages)
+    inner = tuple(theta for theta in _FRACTIONS if theta not in at)
+    if batched:
+        at.update(zip(inner, at_fractions(interp, inner, sa, sb), strict=True))
+    else:
+        at.update((theta, at_fraction(interp)(theta, sa, sb)) for theta in inner)
+    step = _StepView(c, sa, sb, fraction_time(0.5, sa, sb), y1, at)
     ends, candidates = [], []
     resolved, any_candidate = jnp.array(True), jnp.array(False)
     shrink = jnp.ones((), ctx.dtype)
@@ -89,8 +106,7 @@ class _StepView(NamedTuple):
     sb: RealScalar
     s_mid: RealScalar
     y1: Any
-    along: Any  # `at_fraction` of the step's dense output
-    at_ends: dict  # `rates_at_ends`
+    at: dict  # `{θ: (s, y, dy/ds)}` at every fraction the tests read (`_FRACTIONS`)
 
 
 def _sample_one(ctx: LoopContext, step: _StepView, i: int, piece, sign):
@@ -103,8 +119,7 @@ def _sample_one(ctx: LoopContext, step: _StepView, i: int, piece, sign):
         return sign * piece.gap(ctx.abs_time(s, c.t_hi, c.t_lo), y, c.args)
 
     def rate(theta):
-        at_ends = step.at_ends
-        s, y, dy_ds = at_ends[theta] if theta in at_ends else step.along(theta, sa, sb)
+        s, y, dy_ds = step.at[theta]
         return jax.jvp(gap, (s, y), (jnp.ones_like(s), dy_ds))
 
     g_a, g_b = gap(sa, c.y), gap(sb, step.y1)
@@ -120,8 +135,11 @@ def _sample_one(ctx: LoopContext, step: _StepView, i: int, piece, sign):
     # Newton inverse) has no contact to resolve.
     defined = functools.reduce(operator.and_, map(jnp.isfinite, (g_a, g_mid, g_b, *slopes)))
 
+    # (outside `verdict`: a conditional that read the dense output would copy every
+    # lane's stages into its branch at every step)
+    checks = tuple((value, h * slope) for value, slope in map(rate, _CHECK_FRACTIONS))
+
     def verdict():
-        checks = tuple((value, h * slope) for value, slope in map(rate, _CHECK_FRACTIONS))
         floor = step_floor(ctx, piece, c.t_hi, c.t_lo, c.args, c.flight_scale, sa, sb,
                            step.y1, slopes[0], slopes[-1])
         ok, factor = gap_resolution((g_a, g_mid, g_b), tuple(h * r for r in slopes), checks,
@@ -163,42 +181,53 @@ def rates_at_ends(ctx: LoopContext, y0, sa, sb, y1, stages):
     return {0.0: (sa, y0, rate_of(k[0])), 1.0: (sb, y1, rate_of(k[end_stage]))}
 
 
-def at_fraction(interp):
-    """`(s, P(s), P'(s))` at a constant fraction θ of the step [sa, sb], for every step.
+def at_fractions(interp, thetas, sa, sb):
+    """`[(s, P(s), P'(s))]` at the constant fractions `thetas` of the step [sa, sb].
 
     Diffrax's dense outputs are polynomials in θ = (s − sa)/(sb − sa) with per-step
     coefficients (the stages). The same output on [0, 1] with constant ends, evaluated at
-    a constant θ, has its polynomial weights folded into constants by XLA: what is left is
-    one contraction of the stages with constant weights (a jvp through `evaluate` at the
-    traced times would recompute the weights for every lane and take a batched dot per
-    evaluation). Mathematically the same values (P'(s) = dP/dθ / (sb − sa)); the rounding
-    differs by ulps. Interpolations from outside Diffrax and grazejax (`Vern9`'s) are
-    evaluated at the traced times (their `evaluate` might not rescale by their ends).
+    constant θ, has its polynomial weights folded into constants by XLA: what is left is
+    one contraction of the stages with a constant matrix, for every fraction at once (each
+    evaluation on its own was a contraction kernel of its own at every step; a jvp through
+    `evaluate` at the traced times also recomputed the weights for every lane).
+    Mathematically the same values (P'(s) = dP/dθ / (sb − sa)); the rounding differs by
+    ulps. Interpolations from outside Diffrax and grazejax (`Vern9`'s) are evaluated at
+    the traced times (their `evaluate` might not rescale by their ends).
     """
+    if not thetas:
+        return []
+    times = [fraction_time(theta, sa, sb) for theta in thetas]
     if not type(interp).__module__.startswith(("diffrax.", "grazejax.")):
-
-        def traced(theta, sa, sb):
-            s = fraction_time(theta, sa, sb)
+        out = []
+        for s in times:
             y, dy = jax.jvp(interp.evaluate, (s,), (jnp.ones_like(s),))
-            return s, y, dy
-
-        return traced
+            out.append((s, y, dy))
+        return out
     dtype = jnp.result_type(interp.t0)
     # (arrays, not Python floats: some dense outputs do ω-arithmetic with their ends)
     unit = eqx.tree_at(
         lambda i: (i.t0, i.t1), interp, (jnp.zeros((), dtype), jnp.ones((), dtype))
     )
-
-    def folded(theta, sa, sb):
-        s = fraction_time(theta, sa, sb)
-        one = jnp.ones((), jnp.result_type(s))
-        y, dy_dtheta = jax.jvp(unit.evaluate, (theta * one,), (one,))
-        h = sb - sa
+    one = jnp.ones((), dtype)
+    ys, dys = jax.vmap(lambda theta: jax.jvp(unit.evaluate, (theta,), (one,)))(
+        jnp.asarray(thetas, dtype)
+    )
+    h = sb - sa
+    out = []
+    for j, s in enumerate(times):
         # (an empty step has no slope, as linear_rescale's guard gives on the traced path)
-        dy_ds = jax.tree.map(lambda d: safe_divide(d, h, h != 0), dy_dtheta)
-        return s, y, dy_ds
+        dy_ds = jax.tree.map(lambda d, j=j: safe_divide(d[j], h, h != 0), dys)
+        out.append((s, jax.tree.map(lambda y, j=j: y[j], ys), dy_ds))
+    return out
 
-    return folded
+
+def at_fraction(interp):
+    """`(s, P(s), P'(s))` at one constant fraction θ of the step [sa, sb] (`at_fractions`)."""
+
+    def at(theta, sa, sb):
+        return at_fractions(interp, (theta,), sa, sb)[0]
+
+    return at
 
 
 def fraction_time(theta, sa, sb):
