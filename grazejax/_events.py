@@ -37,6 +37,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
+from ._geometry import FLOOR_ULPS
 from ._roots import bracketed_root, safe_divide
 
 # Where a restart step that leaves Φ = 0 tangentially is judged (see `step_ends`).
@@ -142,14 +143,17 @@ def split_step_ends(ends: StepEnds, s_mid, g_mid, slope_mid, sa, restart):
     return first, second
 
 
-def gap_resolution(g, d, checks, flagged, floor, restart):
+def gap_resolution(g, d, checks, flagged, floor, restart, known):
     """Whether the samples of a step resolve its gap: `(resolved, shrink)`.
 
     `g` = (g(0), g(½), g(1)) is the gap at θ = 0, ½, 1 and `d` its slopes in θ (h·ġ);
     `checks` the gap and its slope in θ at `CHECK_POINTS` of each half; `flagged` whether
     each half's end tests (`is_candidate`) flag it; `floor` the gap's round-off floor;
     `restart` whether the step starts on the surface (that root is known: the guard
-    excludes it, and so does the clearance of the first half). The model of each half is
+    excludes it, and so does the clearance of the first half); `known` the gap's share of
+    the solver's tolerance (Σ|∂Φ/∂x_k|·(atol + rtol·|x_k|)): the trajectory itself is not
+    known better, so a misfit within it is no reason to retake a step (a state gliding
+    along a surface stays within it of Φ = 0 for many steps). The model of each half is
     the cubic Hermite interpolant of its ends' values and slopes. Per half:
 
     - *its shape*: the model must predict the check point's value and slope to within
@@ -176,6 +180,12 @@ def gap_resolution(g, d, checks, flagged, floor, restart):
     """
     g0, g_mid, g1 = g
     d0, d_mid, d1 = d
+    # The gap's values carry their own rounding, which the floor (from ∇Φ·x) does not see
+    # where Φ has a large constant part (σ − x near x = 0): a model of values that moved
+    # by less than that rounding misfits by it, in value and (×6) in slope.
+    eps = jnp.finfo(jnp.result_type(g0)).eps
+    size = jnp.maximum(jnp.maximum(jnp.abs(g0), jnp.abs(g_mid)), jnp.abs(g1))
+    known = jnp.maximum(known, FLOOR_ULPS * eps * size)
     mid_misfit = jnp.abs(g_mid - (0.5 * (g0 + g1) + (d0 - d1) / 8))
     resolved = jnp.array(True)
     worst = jnp.zeros_like(g0)  # the largest misfit / allowed ratio of a half
@@ -189,8 +199,8 @@ def gap_resolution(g, d, checks, flagged, floor, restart):
         slope_misfit = jnp.abs(slope - model_slope)
         spread = jnp.maximum(jnp.maximum(p0, p1), value) - jnp.minimum(jnp.minimum(p0, p1), value)
         slope_spread = jnp.maximum(jnp.maximum(jnp.abs(m0), jnp.abs(m1)), jnp.abs(p1 - p0))
-        shape_allowed = jnp.maximum(SHAPE * spread, floor)
-        slope_allowed = jnp.maximum(SHAPE * slope_spread, floor)
+        shape_allowed = jnp.maximum(SHAPE * spread, known)
+        slope_allowed = jnp.maximum(SHAPE * slope_spread, 6 * known)
         shaped = (value_misfit <= shape_allowed) & (slope_misfit <= slope_allowed)
         error = jnp.maximum(jnp.maximum(value_misfit, slope_misfit / 8), mid_misfit / 16)
         one_side = ((p0 > 0) & (p1 > 0)) | ((p0 < 0) & (p1 < 0))
@@ -199,7 +209,7 @@ def gap_resolution(g, d, checks, flagged, floor, restart):
             one_side = jnp.where(restart, p1 != 0, one_side)
             distance = jnp.where(restart, jnp.abs(p1), distance)
         needed = CLEARANCE * error + floor
-        clear = ~one_side | flag | (distance > needed) | (error <= floor)
+        clear = ~one_side | flag | (distance > needed) | (error <= known)
         hidden = _hidden_pair(p0, p1, m0, m1, error + floor, floor)
         resolved = resolved & clear & shaped & ~hidden
         ratio = jnp.maximum(

@@ -112,8 +112,8 @@ def test_throw_under_jit_and_vmap_names_the_status():
 
 
 def _nan_above(height):
-    """A falling ball whose field is NaN above `height`: lanes started there fail (every
-    step is rejected until max_steps)."""
+    """A falling ball whose field is NaN above `height`: lanes started there fail at once
+    (NONFINITE: every step from x0 is NaN, the step size too)."""
     floor = BALL.surfaces[0]
     field = lambda t, x, a: jnp.stack([x[1], -a["g"] + jnp.where(x[0] > height, jnp.nan, 0.0)])
     return gj.Scene(field, [floor])
@@ -125,12 +125,12 @@ def test_sweep_throw_names_the_failing_lanes(balance):
     x0s = np.array([[0.1, 0.0], [5.0, 0.0], [0.2, 0.0], [4.0, 0.0]])
     kw = dict(max_impacts=5, max_steps=50, progress=False, balance=balance)
     quiet = gj.sweep(scene, x0s, 0.0, 1.0, ARGS, **kw)
-    np.testing.assert_array_equal(quiet.status == gj.Status.MAX_STEPS, [False, True, False, True])
+    np.testing.assert_array_equal(quiet.status == gj.Status.NONFINITE, [False, True, False, True])
     with pytest.raises(gj.SimulationError) as info:
         gj.sweep(scene, x0s, 0.0, 1.0, ARGS, throw=True, **kw)
     np.testing.assert_array_equal(info.value.lanes, [1, 3])
-    assert info.value.status == gj.Status.MAX_STEPS
-    assert "2 of 4 lanes failed (MAX_STEPS 2); the first is lane 1" in str(info.value)
+    assert info.value.status == gj.Status.NONFINITE
+    assert "2 of 4 lanes failed (NONFINITE 2); the first is lane 1" in str(info.value)
     np.testing.assert_array_equal(info.value.solution.status, quiet.status)
 
 

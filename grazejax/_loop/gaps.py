@@ -142,8 +142,13 @@ def _sample_one(ctx: LoopContext, step: _StepView, i: int, piece, sign):
     def verdict():
         floor = step_floor(ctx, piece, c.t_hi, c.t_lo, c.args, c.flight_scale, sa, sb,
                            step.y1, slopes[0], slopes[-1])
+        # (the gap's share of the solver's tolerance: `Piece.floor` with the tolerance per
+        # coordinate in place of the coordinates' magnitudes)
+        tol = ctx.tol_a + ctx.tol_r * jnp.maximum(c.flight_scale, jnp.abs(step.y1))
+        known = piece.floor(ctx.abs_time(sb, c.t_hi, c.t_lo), step.y1, c.args,
+                            tol / (FLOOR_ULPS * ctx.eps))
         ok, factor = gap_resolution((g_a, g_mid, g_b), tuple(h * r for r in slopes), checks,
-                                    tuple(flags), floor, c.restart[i])
+                                    tuple(flags), floor, c.restart[i], jnp.maximum(known, floor))
         return ok | ~defined, factor
 
     return halves, tuple(flags), verdict

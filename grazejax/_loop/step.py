@@ -85,7 +85,8 @@ def take_step(ctx: LoopContext, c: LoopState, slides: bool = True, forced=None,
                            checking=checking)
         retake = checking & ~gaps.resolved
         keep = keep & ~retake
-        h_next = jnp.where(retake, gaps.shrink * (sb - sa), h_next)
+        # (no derivative through a step size: see `program.init`)
+        h_next = jnp.where(retake, jax.lax.stop_gradient(gaps.shrink * (sb - sa)), h_next)
     # The step's decisions, replayed when reverse mode runs the step again (`replay.py`).
     h_next, keep = decision(replay_decisions((h_next, keep), forced))
     return Step(
