@@ -57,6 +57,24 @@ for _code, _name in ref.STATUS_NAMES.items():
     assert gj.Status[_name] == _code, _name
 
 
+def _simulate(fam: Family, solver: str, tol: float, x0, args, t0, t1, **kw):
+    """`simulate` of one system of `fam` with the campaign's settings."""
+    return gj.simulate(
+        fam.scene,
+        x0,
+        t0,
+        t1,
+        args,
+        solver=SOLVERS[solver](),
+        rtol=tol,
+        atol=tol,
+        max_impacts=fam.max_impacts,
+        max_steps=MAX_STEPS,
+        direction=fam.direction,
+        **kw,
+    )
+
+
 @functools.cache
 def runner(family_name: str, solver: str, tol: float, saves: int = 0):
     """jit(vmap) of simulate for one family: (x0, args, t0, t1) batched -> dict of arrays."""
@@ -64,20 +82,7 @@ def runner(family_name: str, solver: str, tol: float, saves: int = 0):
 
     def one(x0, args, t0, t1):
         saveat = None if not saves else jnp.linspace(t0, t1, saves)
-        sol = gj.simulate(
-            fam.scene,
-            x0,
-            t0,
-            t1,
-            args,
-            solver=SOLVERS[solver](),
-            rtol=tol,
-            atol=tol,
-            max_impacts=fam.max_impacts,
-            max_steps=MAX_STEPS,
-            direction=fam.direction,
-            saveat=saveat,
-        )
+        sol = _simulate(fam, solver, tol, x0, args, t0, t1, saveat=saveat)
         out = dict(
             status=sol.status,
             num_impacts=sol.num_impacts,
@@ -517,20 +522,7 @@ def derivative_runner(family_name: str, solver: str, tol: float):
     fam = families()[family_name]
 
     def final(x0, args, t0, t1, adjoint):
-        sol = gj.simulate(
-            fam.scene,
-            x0,
-            t0,
-            t1,
-            args,
-            solver=SOLVERS[solver](),
-            rtol=tol,
-            atol=tol,
-            max_impacts=fam.max_impacts,
-            max_steps=MAX_STEPS,
-            direction=fam.direction,
-            adjoint=adjoint,
-        )
+        sol = _simulate(fam, solver, tol, x0, args, t0, t1, adjoint=adjoint)
         return sol.x_final, sol.num_impacts
 
     def forward(x0, args, t0, t1):
