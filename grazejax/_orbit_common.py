@@ -234,7 +234,12 @@ def _linearize(pmap: _PeriodMap, x, t0, T, args, args_dot=None):
 
 @orbit_kernel
 def _linearize_all(pmap: _PeriodMap, x, t0, T, args, args_dot):
-    x, T, args, args_dot = lax.stop_gradient((x, T, args, args_dot))
+    return period_map_jacobian(pmap, *lax.stop_gradient((x, t0, T, args, args_dot)))
+
+
+def period_map_jacobian(pmap: _PeriodMap, x, t0, T, args, args_dot):
+    """`(x_end, ∂x_end/∂x, ∂x_end/∂T, ∂x_end/∂args·args_dot, ok, sol)` of the period map,
+    differentiable in its inputs (a derivative of it is a second derivative of the flow)."""
     n = x.shape[0]
 
     def period_map(z):

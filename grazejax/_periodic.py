@@ -29,13 +29,16 @@ S = DJ + (f⁺ − DJ f⁻)∇Φᵀ/(∇Φ·f⁻), i.e. U = S_k Φ(θ_k, θ_{k�
 derivatives of the orbit (x0, period) with respect to `args` by the implicit function
 theorem; `jax.jacfwd` works, and `jax.grad` with `adjoint=diffrax.DirectAdjoint()` (the
 residual's derivative in `args` then runs backward through `simulate`). Diagnostics
-(monodromy, multipliers, (A6)) are evaluated at the solution without derivatives.
+(monodromy, multipliers, (A6), impacts) are evaluated at the solution without derivatives
+and given their true ones (second derivatives of the flow) only when differentiated
+(`_differentiable_diagnostics`); the residual differentiates to NaN.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import enum
+import functools
 import math
 from typing import Any
 
@@ -70,9 +73,11 @@ from ._orbit_common import (
     gap_rates_at,
     jacobian_in_one_pass,
     orbit_kernel,
+    period_map_jacobian,
 )
 from ._scene import Scene
 from ._status import Status
+from ._tangents import with_forward_tangents, without_derivative
 from ._validate import is_concrete
 
 # --------------------------------------------------------------------------------------
@@ -187,8 +192,11 @@ class Orbit(eqx.Module):
     `x0`, `period`, `monodromy` and `multipliers` describe the last Newton iterate, and
     `stable` is False (no stability verdict).
 
-    Multipliers and the monodromy carry no derivatives; `x0` and `period` are
-    differentiable with respect to `args` (implicit function theorem).
+    `x0` and `period` are differentiable with respect to `args`, `t0`, a fixed period
+    and the phase condition's value (implicit function theorem); so are `monodromy`,
+    `multipliers` (where simple), `poincare_matrix`, `poincare_determinant` and the
+    impact log, as functions of the orbit (second derivatives of the flow, computed only
+    when differentiated). `residual` differentiates to NaN.
     """
 
     x0: Float[Array, " n"]
@@ -278,23 +286,54 @@ def _fmt_complex(z) -> str:
 
 def _host_eigvals(matrix):
     """Eigenvalues sorted by modulus, descending (numpy on the host: works on any backend)."""
+    return _host_eigensystem(matrix)[0]
+
+
+def _host_eigensystem(matrix):
+    """`(w, V, W)`: eigenvalues by modulus descending, right eigenvectors as V's columns
+    and left ones as W's rows, normalised so that W V = I (W = V⁻¹)."""
     m = np.asarray(matrix, dtype=np.float64)
     if not np.all(np.isfinite(m)):
-        return np.full(m.shape[:-1], np.nan + 0j, dtype=np.complex128)
-    w = np.linalg.eigvals(m)
+        nan = np.full(m.shape, np.nan + 0j, dtype=np.complex128)
+        return np.full(m.shape[:-1], np.nan + 0j, dtype=np.complex128), nan, nan
+    w, v = np.linalg.eig(m)
     idx = np.argsort(-np.abs(w), axis=-1, kind="stable")
-    return np.take_along_axis(w, idx, axis=-1).astype(np.complex128)
+    w = np.take_along_axis(w, idx, axis=-1).astype(np.complex128)
+    v = np.take_along_axis(v, idx[..., None, :], axis=-1).astype(np.complex128)
+    with np.errstate(all="ignore"):
+        try:
+            left = np.linalg.inv(v)
+        except np.linalg.LinAlgError:  # defective: no derivative (NaN, below)
+            left = np.full(v.shape, np.nan + 0j, dtype=np.complex128)
+    return w, v, left
 
 
+@jax.custom_jvp
 def eigvals_sorted(matrix) -> Array:
-    """Eigenvalues of a real square matrix, complex, by modulus descending (no derivative).
+    """Eigenvalues of a real square matrix, complex, by modulus descending.
 
-    Runs `numpy.linalg.eigvals` through `jax.pure_callback`, so it works under `jit` and
-    `vmap` on every backend (JAX's own `eig` is CPU-only).
+    Runs NumPy's eigensolver through `jax.pure_callback`, so it works under `jit` and
+    `vmap` on every backend (JAX's own `eig` is CPU-only). Forward-mode derivative of a
+    simple eigenvalue: dλ_k = w_k dA v_k (v_k, w_k its right and left eigenvectors with
+    w_k v_k = 1); at a repeated eigenvalue of a defective matrix it is not finite, as the
+    eigenvalue is not differentiable there.
     """
-    matrix = lax.stop_gradient(jnp.asarray(matrix))
+    matrix = jnp.asarray(matrix)
     shape = jax.ShapeDtypeStruct(matrix.shape[:-1], jnp.complex128)
     return jax.pure_callback(_host_eigvals, shape, matrix, vmap_method="sequential")
+
+
+@eigvals_sorted.defjvp
+def _eigvals_sorted_jvp(primals, tangents):
+    (matrix,), (matrix_dot,) = primals, tangents
+    matrix = jnp.asarray(matrix)
+    vectors = jax.ShapeDtypeStruct(matrix.shape, jnp.complex128)
+    shapes = (jax.ShapeDtypeStruct(matrix.shape[:-1], jnp.complex128), vectors, vectors)
+    w, right, left = jax.pure_callback(_host_eigensystem, shapes, matrix,
+                                       vmap_method="sequential")
+    dA = jnp.asarray(matrix_dot).astype(jnp.complex128)
+    w_dot = jnp.einsum("...ki,...ij,...jk->...k", left, dA, right)
+    return w, w_dot
 
 
 def _snap(x, j, c):
@@ -407,6 +446,51 @@ def _solution_point(fixed_period: bool, value, y0, T_guess, j, c):
     return _snap(y[1:], j, c), y[0], finite_y
 
 
+def _poincare_matrix(fixed_period, n, j, monodromy, jac_T):
+    """The (A6) matrix: U − I, or [∂P/∂T, (U − I) without column j] with a free period."""
+    if fixed_period:
+        return monodromy - jnp.eye(n)
+    return jnp.concatenate([jac_T[:, None], (monodromy - jnp.eye(n))[:, _free_columns(n, j)]],
+                           axis=1)
+
+
+# The fields of `_assess` that are functions of the orbit (x0, T, t0, args), with their
+# forward-mode derivatives (`_differentiable_diagnostics`); `residual` has none.
+_DIFFERENTIABLE = ("monodromy", "multipliers", "poincare_matrix", "poincare_determinant",
+                   "impact_times", "impact_pre", "impact_post")
+
+
+def _differentiable_diagnostics(pmap, fixed_period, n, out, x0, T, t0, args, j):
+    """`out` (computed on constants) with true derivatives for the fields that have them
+    (a second derivative of the flow, computed only when asked for) and NaN for the
+    residual, so that no diagnostic differentiates to a silent 0."""
+    live = functools.partial(_live_diagnostics, pmap, fixed_period, n)
+    primals = (x0, T, t0, args, j)
+    values = with_forward_tangents(live, {k: out[k] for k in _DIFFERENTIABLE}, primals,
+                                   jvp=functools.partial(_live_diagnostics_jvp, pmap,
+                                                         fixed_period, n))
+    residual = without_derivative(out["residual"], primals[:4])
+    return {**out, **values, "residual": residual}
+
+
+def _live_diagnostics(pmap, fixed_period, n, x0, T, t0, args, j):
+    """The `_DIFFERENTIABLE` diagnostics as functions of the orbit."""
+    zeros = jax.tree.map(jnp.zeros_like, args)
+    _, monodromy, jac_T, _, _, sol = period_map_jacobian(pmap, x0, t0, T, args, zeros)
+    a6 = _poincare_matrix(fixed_period, n, j, monodromy, jac_T)
+    return dict(monodromy=monodromy, multipliers=eigvals_sorted(monodromy),
+                poincare_matrix=a6, poincare_determinant=jnp.linalg.det(a6),
+                impact_times=sol.impact_times, impact_pre=sol.impact_pre,
+                impact_post=sol.impact_post)
+
+
+@orbit_kernel
+def _live_diagnostics_jvp(pmap, fixed_period, n, primals, tangents):
+    # (one compiled program: run op by op, a jacfwd outside jit spent ~40 s here)
+    return jax.jvp(functools.partial(_live_diagnostics, pmap, fixed_period, n), primals,
+                   tangents)
+
+
 @orbit_kernel
 def _assess(pmap, fixed_period, n, j, fix, f_guess, x_guess, x0, period, t0, args, converged,
             finite_y, lin, requested_impacts):
@@ -415,12 +499,8 @@ def _assess(pmap, fixed_period, n, j, fix, f_guess, x_guess, x0, period, t0, arg
     x_end, monodromy, jac_T, ok, sol = lin[:5]
     x_fixed = lax.stop_gradient(x0)
     gap = x_end - x_fixed
-    if fixed_period:
-        a6 = monodromy - jnp.eye(n)
-        j_out = jnp.array(-1)
-    else:
-        a6 = jnp.concatenate([jac_T[:, None], (monodromy - jnp.eye(n))[:, _free_columns(n, j)]], axis=1)
-        j_out = j
+    a6 = _poincare_matrix(fixed_period, n, j, monodromy, jac_T)
+    j_out = jnp.array(-1) if fixed_period else j
     f_scale = jnp.max(jnp.abs(f_guess))
     f_end = pmap.scene.vector_field(t0, x_fixed, lax.stop_gradient(args))
     at_rest = jnp.array(False) if fixed_period else (
@@ -661,8 +741,11 @@ def find_periodic_orbit(
     t0 = jnp.asarray(t0, float)
     T_guess = jnp.asarray(period, float)
     fix_arg = jnp.asarray(-1 if fix is None else fix)
-    # Only Newton carries derivatives (implicit function theorem): everything else sees
-    # constants, so that jacfwd does not compile derivatives of the diagnostics.
+    # Newton carries the derivatives of the orbit (implicit function theorem) in what
+    # defines it: args, t0, the fixed period and the phase condition's value x_j = c. The
+    # guess and the diagnostics see constants (the diagnostics get their derivatives
+    # below, only when asked for).
+    t0_live, T_live, x_live = t0, T_guess, x_guess
     x_guess, t0, T_guess, args_const = lax.stop_gradient((x_guess, t0, T_guess, args))
     j, c, f_guess, lin = _phase_condition(pmap, x_guess, t0, T_guess, args_const, fix_arg,
                                           fixed_period)
@@ -671,17 +754,24 @@ def find_periodic_orbit(
     else:
         T_start = _refine_period(pmap, x_guess, t0, T_guess, args_const, j, c, lin)
         y0 = jnp.concatenate([T_start[None], x_guess])
+        c = c + (x_live[j] - lax.stop_gradient(x_live[j]))  # (c's derivative, if any)
+    T_fixed = T_live if fixed_period else T_guess
     # Only Newton's runs carry the adjoint: the diagnostics are evaluated without
     # derivatives, on the (faster) forward-mode loop.
     value, converged, num_steps = _newton(
         dataclasses.replace(pmap, adjoint=adjoint), fixed_period, root_finder, int(max_steps),
-        y0, t0, T_guess, args, j, c,
+        y0, t0_live, T_fixed, args, j, c,
     )
-    x0, T, finite_y = _solution_point(fixed_period, value, y0, T_guess, j, c)
+    x0, T, finite_y = _solution_point(fixed_period, value, y0, T_fixed, j, c)
     x_const, T_const = lax.stop_gradient((x0, T))
     lin = _linearize(pmap, x_const, t0, T_const, args_const)
     out = _assess(pmap, fixed_period, n, j, fix_arg, f_guess, x_guess, x_const, T_const, t0,
                   args_const, converged, finite_y, lin, requested)
+    # (with a reverse-capable adjoint, the diagnostics' derivatives take it too: jax.grad
+    # of a multiplier transposes them)
+    pmap_live = dataclasses.replace(pmap, adjoint=adjoint) if loop_kinds(adjoint).reverse else pmap
+    out = _differentiable_diagnostics(pmap_live, fixed_period, n, out, x0, T, t0_live, args, j)
+    t0 = t0_live
     if user_root_finder:
         newton_rtol, newton_atol = (_host_float(getattr(root_finder, name, math.nan))
                                     for name in ("rtol", "atol"))
