@@ -32,6 +32,7 @@ like h⁴): the test costs three more interpolant evaluations per step; the root
 run only when some lane (under vmap) has a candidate.
 """
 
+import functools
 from typing import NamedTuple
 
 import jax
@@ -52,6 +53,11 @@ CLEARANCE = 4.0
 # Every half's model must predict its check point to this fraction of the half's spread of
 # values (or to the floor): the shape of the gap, the number of its extrema, is resolved.
 SHAPE = 0.125
+# A gap whose samples on a step (values at 0, ½, 1 and the check points) all lie this many
+# times their variation (the values' spread plus the largest slope times the step) on the
+# free side needs no model: the model's error is at most ~2 spreads + ½ step·slope, and the
+# clearance rule asks CLEARANCE = 4 of them, so this is stricter (`is_far`).
+FAR = 8.0
 
 
 class StepEnds(NamedTuple):
@@ -141,6 +147,15 @@ def split_step_ends(ends: StepEnds, s_mid, g_mid, slope_mid, sa, restart):
     first = StepEnds(ends.g_start, G_mid, ends.slope_start, slope_mid, ends.s_start)
     second = StepEnds(G_mid, ends.g_end, slope_mid, ends.slope_end, s_mid)
     return first, second
+
+
+def is_far(values, slopes):
+    """Whether a gap sampled at `values` with slopes in θ (h·ġ) `slopes` stays clear of
+    Φ = 0 over the step without a model (`FAR`): then it is resolved, whatever its shape."""
+    lowest = functools.reduce(jnp.minimum, values)
+    spread = functools.reduce(jnp.maximum, values) - lowest
+    steepest = functools.reduce(jnp.maximum, map(jnp.abs, slopes))
+    return lowest > FAR * (spread + steepest)
 
 
 def gap_resolution(g, d, checks, flagged, floor, restart, known):

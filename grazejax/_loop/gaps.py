@@ -22,6 +22,7 @@ from .._events import (
     LIFT_FRACTION,
     gap_resolution,
     is_candidate,
+    is_far,
     split_step_ends,
     step_ends,
 )
@@ -53,13 +54,13 @@ def sample_gaps(ctx: LoopContext, c: LoopState, sa, sb, y1, interp, stages, *,
                 batched: bool = False, checking=True) -> GapSamples:
     """Sample each piece's gap on the step [sa, sb] from `c.y` to `y1`.
 
-    `batched` (the loop runs under `vmap`): the verdict `resolved` is computed inside a
-    `cond` on some lane `checking` it, and the dense output is evaluated at every fraction
-    in one contraction. The verdict's arithmetic is light, but XLA's CPU fusion copies it
-    into every consumer of the step's decision (each field of the next state), and under
-    `vmap` each copy runs over the whole batch; a conditional's results are computed once.
-    A single run does better without either (a conditional and a batched contraction are
-    kernels of their own at every step).
+    The verdict `resolved` (`gap_resolution`) is computed under a `cond`, only where a
+    gap is not far from Φ = 0 (`is_far`) in some lane `checking` it: its arithmetic is
+    light, but XLA's CPU fusion copies it into every consumer of the step's decision (each
+    field of the next state), and under `vmap` each copy runs over the whole batch; a
+    conditional's results are computed once, and in a single run most steps skip it.
+    `batched` (the loop runs under `vmap`): the dense output is evaluated at every
+    fraction in one contraction (in a single run that is a kernel of its own per step).
     """
     at = rates_at_ends(ctx, c.y, sa, sb, y1, stages)
     inner = tuple(theta for theta in _FRACTIONS if theta not in at)
@@ -74,14 +75,12 @@ def sample_gaps(ctx: LoopContext, c: LoopState, sa, sb, y1, interp, stages, *,
     for i, piece in enumerate(ctx.pieces):
         row, candidate_row = [], []
         for sign in piece.signs:
-            halves, flagged, verdict = _sample_one(ctx, step, i, piece, sign)
-            if batched:
-                ok, factor = lax.cond(
-                    eqxi.unvmap_any(checking), verdict,
-                    lambda: (jnp.array(True), jnp.array(1.0, ctx.dtype)),
-                )
-            else:
-                ok, factor = verdict()
+            halves, flagged, far, verdict = _sample_one(ctx, step, i, piece, sign)
+            # (a gap far from Φ = 0 on this step needs no verdict: most steps of a run)
+            trivially = lambda: (jnp.array(True), jnp.array(1.0, ctx.dtype))  # noqa: E731
+            some_lane = eqxi.unvmap_any(checking & ~far) if batched else checking & ~far
+            ok, factor = lax.cond(some_lane, verdict, trivially)
+            ok = ok | far
             # (a sliding state is on its surface: no contact with it is searched for)
             ok = ok | c.stick[i]
             resolved = resolved & ok
@@ -138,6 +137,8 @@ def _sample_one(ctx: LoopContext, step: _StepView, i: int, piece, sign):
     # (outside `verdict`: a conditional that read the dense output would copy every
     # lane's stages into its branch at every step)
     checks = tuple((value, h * slope) for value, slope in map(rate, _CHECK_FRACTIONS))
+    far = is_far((g_a, g_mid, g_b, *(v for v, _ in checks)),
+                 (*(h * r for r in slopes), *(d for _, d in checks))) & defined
 
     def verdict():
         floor = step_floor(ctx, piece, c.t_hi, c.t_lo, c.args, c.flight_scale, sa, sb,
@@ -151,7 +152,7 @@ def _sample_one(ctx: LoopContext, step: _StepView, i: int, piece, sign):
                                     tuple(flags), floor, c.restart[i], jnp.maximum(known, floor))
         return ok | ~defined, factor
 
-    return halves, tuple(flags), verdict
+    return halves, tuple(flags), far, verdict
 
 
 def step_floor(ctx: LoopContext, piece, t_hi, t_lo, args_, flight_scale, sa, sb, y1,

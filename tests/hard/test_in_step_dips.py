@@ -86,3 +86,22 @@ def test_a_field_nan_at_x0_is_nonfinite():
     sol = gj.simulate(scene, jnp.array([0.5, 0.0]), 0.0, 1.0, None, max_steps=1000)
     assert gj.Status(int(sol.status)) == gj.Status.NONFINITE
     assert int(sol.num_steps) < 10 and float(sol.t_final) == 0.0
+
+
+def test_the_far_screen_is_stricter_than_the_clearance_rule():
+    """`is_far` skips the resolution verdict on a step: it must accept only gaps that
+    every sample and slope say cannot reach Φ = 0 (a dip between samples needs a slope
+    FAR times larger than any seen), and refuse the shapes of the missed cases."""
+    from grazejax._events import FAR, is_far
+
+    # A straight approach from 1 to 0.9 with step·slope 0.1: far (1 > 8·0.2 is false).
+    assert not bool(is_far((1.0, 0.95, 0.9), (-0.1, -0.1, -0.1)))
+    assert bool(is_far((10.0, 9.95, 9.9), (-0.1, -0.1, -0.1)))
+    # At the boundary: lowest = FAR·(spread + steepest) is not far.
+    assert not bool(is_far((FAR * 0.2, FAR * 0.2 + 0.1), (0.1, 0.1)))
+    # The missed impact of x = t, Φ = 0.99 + cos x on a long exact step: values and slopes of
+    # order 1 beside a minimum of 0.99: never far.
+    t = np.array([0.0, 0.2071, 0.5, 0.809, 1.0]) * 6.0
+    assert not bool(is_far(tuple(0.99 + np.cos(t)), tuple(-6.0 * np.sin(t))))
+    # Non-finite samples are not far.
+    assert not bool(is_far((jnp.nan, 5.0, 5.0), (0.0, 0.0, 0.0)))
