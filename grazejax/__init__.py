@@ -8,6 +8,8 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 
+from ._bifurcation import BifurcationPoint as BifurcationPoint
+from ._bifurcation import locate_bifurcation as locate_bifurcation
 from ._compiler import compiler_options as compiler_options
 from ._conditions import ConditionReport as ConditionReport
 from ._conditions import ConditionResult as ConditionResult

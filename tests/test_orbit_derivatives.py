@@ -98,6 +98,7 @@ def test_monodromy_and_multiplier_derivatives_match_the_closed_form():
     np.testing.assert_allclose(jac[3, 0], c / (1.3**2 * math.sin(phi) * OMEGA), rtol=1e-8)
 
 
+@pytest.mark.slow
 def test_multiplier_gradient_in_reverse_mode_equals_the_closed_form():
     """`jax.grad` through the orbit's adjoint (DirectAdjoint) gives the same derivative of
     the monodromy's trace as jacfwd and the closed form."""
@@ -140,7 +141,7 @@ def test_fixed_period_carries_its_derivative():
     np.testing.assert_allclose(got, exact, rtol=1e-6, atol=1e-8)
 
 
-@pytest.mark.parametrize("scene_name", ["table", "ball"])
+@pytest.mark.parametrize("scene_name", ["table", pytest.param("ball", marks=pytest.mark.slow)])
 def test_second_derivatives_through_impacts(scene_name):
     """∂²/∂p∂x of the final state across impacts (moving and fixed walls): the event
     time's one Newton step carries first derivatives only; the curvature terms make

@@ -150,7 +150,8 @@ def _sample_one(ctx: LoopContext, step: _StepView, i: int, piece, sign):
                             tol / (FLOOR_ULPS * ctx.eps))
         ok, factor = gap_resolution((g_a, g_mid, g_b), tuple(h * r for r in slopes), checks,
                                     tuple(flags), floor, c.restart[i], jnp.maximum(known, floor))
-        return ok | ~defined, factor
+        # (the branches of the caller's `cond` must agree in type: float32 runs too)
+        return ok | ~defined, jnp.asarray(factor, ctx.dtype)
 
     return halves, tuple(flags), far, verdict
 

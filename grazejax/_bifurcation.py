@@ -1,0 +1,279 @@
+r"""Bifurcation points of periodic orbits solved by their defining systems.
+
+A special point of a family of periodic orbits is not interpolated between branch points
+here: it is the solution of one nonlinear system in the orbit and the parameter μ,
+
+    P(x, T; μ, ν) − x = 0,   [x_j − c = 0, free period],   τ(μ, ν, x, T) = 0,
+
+with the test function τ of its kind on the monodromy U = ∂P/∂x:
+
+- period doubling: det(U + I) (a multiplier −1);
+- fold: det(U − I) with a fixed period, det of the (A6) matrix [∂P/∂T, (U − I) without
+  column j] with a free one (a second multiplier 1 beside the trivial one);
+- Neimark–Sacker: det(U ⊙ U − I), U ⊙ U the bialternate product (the action of U on
+  Λ²ℝⁿ, eigenvalues ρ_i ρ_j, i < j): a pair with ρ_i ρ_j = 1, a complex pair on the unit
+  circle. (A real pair ρ, 1/ρ, a neutral saddle, solves it too: `multipliers` tells them
+  apart.)
+
+The system is solved by Newton's method (`optx.root_find`); its Jacobian holds derivatives
+of U, second derivatives of the flow, which are exact through impacts (the event time's
+curvature terms, `_loop/land.py`). The point is a function of the second parameter ν by the
+implicit function theorem: `jax.jacfwd`, and `jax.grad` with
+`adjoint=diffrax.DirectAdjoint()`, differentiate it without differentiating Newton's
+iterations.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+
+import diffrax
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
+from jaxtyping import Array, Complex, Float, Int
+
+from ._adjoint import loop_kinds
+from ._orbit_common import (
+    _ATOL_PER_RTOL,
+    _PeriodMap,
+    _state_scale,
+    jacobian_in_one_pass,
+    period_map_jacobian,
+)
+from ._periodic import OrbitStatus, eigvals_sorted
+from ._scene import Scene
+from ._tangents import without_derivative
+from ._validate import is_concrete
+
+KINDS = ("period-doubling", "fold", "neimark-sacker")
+
+
+class BifurcationPoint(eqx.Module):
+    r"""A bifurcation point solved by its defining system ([`grazejax.locate_bifurcation`][]).
+
+    **Fields:**
+
+    - `kind`: `"period-doubling"`, `"fold"` or `"neimark-sacker"` (static).
+    - `mu`, `nu`: the first parameter (solved for) and the second (given).
+    - `x0`, `t0`, `period`: the orbit there (`x0` at phase `t0`).
+    - `multipliers`: of its monodromy, modulus descending.
+    - `test_value`: the kind's test function at the solution (≈ 0).
+    - `residual`: max |P(x0) − x0| at the solution (no derivative: NaN).
+    - `status`: an [`grazejax.OrbitStatus`][] code (`SUCCESS`, `NO_CONVERGENCE`,
+      `DIVERGED`, `SIMULATION_FAILED`); `num_steps`: Newton iterations.
+
+    `mu`, `x0`, `period` and `multipliers` are differentiable in ν (and in anything
+    `args_of` closes over) by the implicit function theorem.
+    """
+
+    kind: str = eqx.field(static=True)
+    mu: Float[Array, ""]
+    nu: Float[Array, ""]
+    x0: Float[Array, " n"]
+    t0: Float[Array, ""]
+    period: Float[Array, ""]
+    multipliers: Complex[Array, " n"]
+    test_value: Float[Array, ""]
+    residual: Float[Array, ""]
+    status: Int[Array, ""]
+    num_steps: Int[Array, ""]
+
+    @property
+    def message(self) -> str:
+        return OrbitStatus(int(self.status)).name
+
+
+def bialternate_square(U):
+    """U ⊙ U: the action of U on Λ²ℝⁿ in the basis e_i ∧ e_j (i < j), whose eigenvalues are
+    the products ρ_i ρ_j (i < j) of U's."""
+    n = U.shape[0]
+    pairs = list(itertools.combinations(range(n), 2))
+    if not pairs:
+        return jnp.zeros((0, 0), U.dtype)
+    i, j = (np.array(p) for p in zip(*pairs, strict=True))
+    # (U∧U)_{(i,j),(k,l)} = U_ik U_jl − U_il U_jk
+    return (U[i[:, None], i[None, :]] * U[j[:, None], j[None, :]]
+            - U[i[:, None], j[None, :]] * U[j[:, None], i[None, :]])
+
+
+def test_function(kind: str, fixed_period: bool, monodromy, jac_T, j):
+    """τ of `kind` on the monodromy (module docstring)."""
+    n = monodromy.shape[0]
+    eye = jnp.eye(n, dtype=monodromy.dtype)
+    if kind == "period-doubling":
+        return jnp.linalg.det(monodromy + eye)
+    if kind == "fold":
+        if fixed_period:
+            return jnp.linalg.det(monodromy - eye)
+        free = jnp.arange(n - 1) + (jnp.arange(n - 1) >= j)
+        return jnp.linalg.det(jnp.concatenate([jac_T[:, None], (monodromy - eye)[:, free]],
+                                              axis=1))
+    if kind == "neimark-sacker":
+        square = bialternate_square(monodromy)
+        return jnp.linalg.det(square - jnp.eye(square.shape[0], dtype=square.dtype))
+    raise ValueError(f"kind must be one of {KINDS}, got {kind!r}")
+
+
+@dataclasses.dataclass(frozen=True)
+class _System:
+    """The defining system's static parts: `residual(y, (nu, c))` with y = (x, μ) (fixed
+    period) or (T, x, μ) (free period, phase condition x_j = c)."""
+
+    pmap: _PeriodMap
+    kind: str
+    fixed_period: bool
+    args_of: object
+    period_of: object
+    t0: float
+    j: int
+
+    def split(self, y):
+        if self.fixed_period:
+            return y[:-1], None, y[-1]
+        return y[1:-1], y[0], y[-1]
+
+    def residual(self, y, params):
+        nu, c = params
+        x, T, mu = self.split(y)
+        if self.fixed_period:
+            T = self.period_of(mu, nu)
+        args = self.args_of(mu, nu)
+        zeros = jax.tree.map(jnp.zeros_like, args)
+        x_end, monodromy, jac_T, _, ok, _ = period_map_jacobian(self.pmap, x, self.t0, T, args,
+                                                                zeros)
+        tau = test_function(self.kind, self.fixed_period, monodromy, jac_T, self.j)
+        rows = [x_end - x]
+        if not self.fixed_period:
+            rows.append((x[self.j] - c)[None])
+        rows.append(tau[None])
+        return jnp.where(ok, jnp.concatenate(rows), jnp.nan)
+
+
+def locate_bifurcation(
+    scene: Scene,
+    point,
+    args_of,
+    nu,
+    *,
+    kind: str | None = None,
+    fixed_period: bool = True,
+    period_of=None,
+    fix: int | None = None,
+    rtol: float = 1e-10,
+    atol: float | None = None,
+    solver: diffrax.AbstractSolver | None = None,
+    newton_tol: float = 1e-9,
+    max_steps: int = 30,
+    max_impacts: int = 64,
+    max_solver_steps: int = 50_000,
+    adjoint=None,
+) -> BifurcationPoint:
+    r"""Solve a bifurcation point of periodic orbits by its defining system, at ν.
+
+    **Arguments:**
+
+    - `scene`: a [`grazejax.Scene`][].
+    - `point`: the guess: a [`grazejax.SpecialPoint`][] from
+      [`grazejax.continue_orbit`][], or any object with `mu`, `x0`, `t0`, `period` and
+      (unless `kind` is given) `kind`.
+    - `args_of(mu, nu) -> args`: the scene's parameters at (μ, ν).
+    - `nu`: the second parameter (may be traced: the result is differentiable in it).
+    - `kind`: `"period-doubling"`, `"fold"` or `"neimark-sacker"` (default `point.kind`).
+    - `fixed_period`: a forced orbit of period `period_of(mu, nu)` (default `point.period`
+      for every μ, ν), solved for x0 and μ; `False`: an autonomous orbit, solved for its
+      period, x0 and μ with x_j held at the guess's value (`fix`: j; default the j with the
+      largest |f_j(x0)|).
+    - `rtol`, `atol`, `solver`, `max_impacts`, `max_solver_steps`: passed to
+      [`grazejax.simulate`][] (`atol=None`: `1e-2 · rtol` times the orbit's size).
+    - `newton_tol`, `max_steps`: Newton's relative tolerance and iterations.
+    - `adjoint`: `simulate`'s for Newton's runs: the default (`diffrax.ForwardMode()`)
+      lets `jax.jacfwd` differentiate the point, `diffrax.DirectAdjoint()` `jax.grad` too.
+
+    **Returns:** a [`grazejax.BifurcationPoint`][]; failure is a status, never an
+    exception inside `jit`.
+
+    The orbit starts away from impacts (x0 is not a post-impact state): take `point.t0`
+    between impacts, as [`grazejax.continue_orbit`][]'s points are.
+    """
+    kind = getattr(point, "kind", None) if kind is None else kind
+    if kind not in KINDS:
+        raise ValueError(f"kind must be one of {KINDS}, got {kind!r}")
+    if not loop_kinds(adjoint).forward:
+        raise ValueError(
+            "locate_bifurcation: Newton's method linearises in forward mode, which "
+            "adjoint=diffrax.RecursiveCheckpointAdjoint() does not support; pass "
+            "adjoint=diffrax.DirectAdjoint() to differentiate with jax.grad"
+        )
+    x_guess = np.asarray(point.x0, dtype=float)
+    if x_guess.ndim != 1:
+        raise ValueError(f"point.x0 must be a state vector, got shape {x_guess.shape}")
+    n = x_guess.shape[0]
+    if fix is not None and not (isinstance(fix, (int, np.integer)) and 0 <= fix < n):
+        raise ValueError(f"fix must be a coordinate index in [0, {n}), got {fix!r}")
+    mu_guess, t0, T_guess = float(point.mu), float(point.t0), float(point.period)
+    if period_of is None:
+        period_of = lambda mu, nu: jnp.asarray(T_guess, float)  # noqa: E731
+    scale = _state_scale(x_guess)
+    atol = _ATOL_PER_RTOL * float(rtol) * scale if atol is None else float(atol)
+    pmap = _PeriodMap(scene=scene, end_impacts=0, solver=solver, rtol=float(rtol), atol=atol,
+                      max_impacts=int(max_impacts), max_solver_steps=int(max_solver_steps),
+                      adjoint=adjoint)
+    if fixed_period:
+        j = -1
+        y0 = jnp.asarray(np.append(x_guess, mu_guess))
+    else:
+        if fix is None:
+            if not is_concrete(nu):
+                raise ValueError("locate_bifurcation: inside jit/vmap (traced nu) pass fix")
+            f0 = scene.vector_field(t0, jnp.asarray(x_guess), args_of(mu_guess, nu))
+            fix = int(np.argmax(np.abs(np.asarray(jax.lax.stop_gradient(f0)))))
+        j = int(fix)
+        y0 = jnp.asarray(np.concatenate([[T_guess], x_guess, [mu_guess]]))
+    system = _System(pmap, kind, bool(fixed_period), args_of, period_of, t0, j)
+    c = jnp.asarray(x_guess[j] if j >= 0 else 0.0)
+    return _solve(system, y0, jnp.asarray(nu, float), c, float(newton_tol) * max(scale, 1.0),
+                  float(newton_tol), int(max_steps))
+
+
+def _solve(system: _System, y0, nu, c, newton_atol, newton_rtol, max_steps):
+    root_finder = optx.Newton(rtol=newton_rtol, atol=newton_atol)
+    solution = optx.root_find(jacobian_in_one_pass(system.residual), root_finder, y0, (nu, c),
+                              max_steps=max_steps, throw=False)
+    y = solution.value
+    converged = solution.result == optx.RESULTS.successful
+    finite = jnp.all(jnp.isfinite(jax.lax.stop_gradient(y)))
+    y = jnp.where(finite, y, y0)
+    x, T, mu = system.split(y)
+    if system.fixed_period:
+        T = system.period_of(mu, nu)
+    return _assess(system, x, T, mu, nu, converged, finite, solution.stats["num_steps"])
+
+
+def _assess(system: _System, x, T, mu, nu, converged, finite, num_steps):
+    """The point's diagnostics, with derivatives where they have them."""
+    args = system.args_of(mu, nu)
+    zeros = jax.tree.map(jnp.zeros_like, args)
+    x_end, monodromy, jac_T, _, ok, _ = period_map_jacobian(
+        dataclasses.replace(system.pmap, adjoint=_diagnostic_adjoint(system.pmap.adjoint)),
+        x, system.t0, T, args, zeros)
+    tau = test_function(system.kind, system.fixed_period, monodromy, jac_T, system.j)
+    residual = jnp.max(jnp.abs(jax.lax.stop_gradient(x_end - x)))
+    S = OrbitStatus
+    status = jnp.select([~finite, ~ok, ~converged], [S.DIVERGED, S.SIMULATION_FAILED,
+                                                     S.NO_CONVERGENCE], S.SUCCESS)
+    return BifurcationPoint(
+        kind=system.kind, mu=mu, nu=nu, x0=x, t0=jnp.asarray(system.t0, float), period=T,
+        multipliers=eigvals_sorted(monodromy), test_value=tau,
+        residual=without_derivative(residual, (x, mu, nu)),
+        status=status.astype(jnp.int32), num_steps=jnp.asarray(num_steps),
+    )
+
+
+def _diagnostic_adjoint(adjoint):
+    """The diagnostics' runs: the orbit's own adjoint where it reverses (jax.grad of a
+    multiplier), else the forward-mode loop."""
+    return adjoint if loop_kinds(adjoint).reverse else None
