@@ -109,8 +109,9 @@ class _StepView(NamedTuple):
 
 
 def _sample_one(ctx: LoopContext, step: _StepView, i: int, piece, sign):
-    """One piece's side: `(halves, flags, verdict)`, the halves' `StepEnds`, whether an end
-    test flags each half, and the resolution verdict as a function (`gap_resolution`'s
+    """One piece's side: `(halves, flags, far, verdict)`, the halves' `StepEnds`, whether an
+    end test flags each half, whether the gap is far from Φ = 0 on the step (`is_far`: no
+    verdict needed), and the resolution verdict as a function (`gap_resolution`'s
     `(resolved, shrink)`), so the caller may compute it under a `cond`."""
     c, sa, sb, h = step.c, step.sa, step.sb, step.sb - step.sa
 
