@@ -2,10 +2,8 @@
 
 **Batched runs.** XLA's CPU backend asks LLVM for 256-bit vectors by default, also on a
 processor with AVX-512. A sweep runs every operation of the impact loop across its lanes,
-so its kernels are long elementwise loops that 512-bit vectors serve better: an ex1dof
-sweep (Dopri8 at 2e-12, 2048 lanes, one core of an AMD EPYC with AVX-512) took 35.0 µs
-per trajectory with 512-bit vectors against 39.1 µs with XLA's default, impact times bit
-for bit equal (grazejax issue 14). heyoka's batch mode, the peer in the throughput
+so its kernels are long elementwise loops that 512-bit vectors serve better (faster
+sweeps, impact times bit for bit equal: `benchmarks/README.md`). heyoka's batch mode, the peer in the throughput
 benchmark, uses the full AVX-512 width too.
 
 `compiler_options()` is what `sweep` passes to `jax.jit`; pass it to your own
@@ -13,14 +11,13 @@ benchmark, uses the full AVX-512 width too.
 effect.
 
 **Single runs.** XLA:CPU emits each fusion through MLIR ("fusion emitters") by default,
-which is most of a first call's time: on one core of the same machine, `jax.jit` of an
-ex1dof run (200 impacts) compiled in 3.1 s with them and 1.4 s with XLA's older LLVM
-emitters, and then ran in the same 3.2 ms. For a batch the older emitters give slower
-kernels (the 2048-lane sweep above: +20–30%), so they are for programs of one
+which is most of a first call's time: XLA's older LLVM emitters compile a single run in
+about half the time, and the program runs as fast. For a batch the older emitters give
+slower kernels, so they are for programs of one
 trajectory: `compiler_options(batched=False)`, which grazejax's own analysis programs
 (periodic orbits, continuation, flow Jacobians) use. The two emitters may round
-transcendental functions differently: results can differ in the last bits (golden runs:
-up to 4e-14 relative), not in accuracy.
+transcendental functions differently: results can differ in the last bits, not in
+accuracy.
 
 An option the user set in `XLA_FLAGS` is the user's choice and wins; an option this XLA
 does not know is not passed.

@@ -491,7 +491,7 @@ def continue_orbit(
 
     # ---- the start: re-phased, then re-solved in the period map used here by the
     # corrector itself (its bordered row fixes μ = mu_start): a separate Newton solve
-    # compiled a second Newton program, ~9 s of a first call ----
+    # would compile a second Newton program ----
     t_s, x_s = _rephase(scene, orbit, args_of(mu_start), kw)
     n = x_s.shape[0]
     usable = int(orbit.status) in (OrbitStatus.SUCCESS, OrbitStatus.LOOSE_ATOL)

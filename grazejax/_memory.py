@@ -6,10 +6,9 @@ are freed, at most 32 MiB) with newly mapped pages and unmaps it when it is free
 blocks come from the heap, whose top goes back to the system once more than the trim
 threshold is free. So a program that returns large buffers gets pages from the kernel at
 every call, and the kernel zeroes each 4 KiB page on its first touch (a page fault). An
-impact log of 4096 rows at 256 lanes is 56 MB of buffers: ~11,000 page faults a call, which
-made the sweep 1.3–1.5× slower than with a 16-row log (ex1dof, 9 impacts used, one core of
-an AMD EPYC; `benchmarks/bench_unused.py`); keeping the freed memory brings it to
-1.06–1.10×, the rest being the writing of the NaN-filled rows (grazejax issue 14).
+impact log of 4096 rows at 256 lanes is 56 MB of buffers, thousands of page faults a call
+(`benchmarks/bench_unused.py` measures what they cost a sweep, and what keeping the freed
+memory saves; the rest is the writing of the NaN-filled rows).
 
 `retain_freed_memory()` asks glibc for that: blocks up to 32 MiB (its maximum threshold)
 come from the heap, and freed heap memory stays in the process for the next call. The

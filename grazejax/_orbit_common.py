@@ -113,8 +113,7 @@ def _newton_for(newton_tol, scale):
 
     The tolerances are arrays: `eqx.filter_jit` traces arrays but treats Python floats as
     static, and the absolute tolerance follows each orbit's size, so with floats every
-    orbit, continuation start and grazing point compiled its own Newton program (~7 s
-    each: six of them in one bifurcation notebook).
+    orbit, continuation start and grazing point would compile its own Newton program.
     """
     import optimistix as optx
 
@@ -194,8 +193,8 @@ def orbit_kernel(fn):
 
     `jit` keys its programs on weak types too, and the same time or state reached these
     kernels weak-typed from one caller (`jnp.asarray(0.0)`, a Python float's result) and
-    strong from another: in one continuation `_linearize_all` and `_sampled` compiled
-    twice (~5 s each). Weak-typed arrays are made strong first (the orbit code works in
+    strong from another, and each kernel compiled twice. Weak-typed arrays are made strong
+    first (the orbit code works in
     the float64 its inputs are converted to, so the promotion rules do not change).
     """
     jitted = single_run_jit(fn)
@@ -265,8 +264,7 @@ def _sampled(pmap: _PeriodMap, x0, t0, t1, args, ts):
 @orbit_kernel
 def gap_rates_at(gap, field, t, x, args):
     """`gap_rates` for the host-side diagnostics, as one compiled program per surface: run
-    op by op, each of its nested JVP's operations compiled a program of its own (~1 s of a
-    first continuation)."""
+    op by op, each of its nested JVP's operations would compile a program of its own."""
     return gap_rates(gap, field, t, x, args)
 
 

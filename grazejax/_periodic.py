@@ -381,8 +381,7 @@ def _phase_condition(pmap: _PeriodMap, x_guess, t0, T_guess, args, fix, fixed_pe
 
 
 # The small computations between the compiled period-map programs are kernels too: run
-# op by op, each of their ~100 operations compiled a program of its own (~30 ms each,
-# ~3 s of a cold `find_periodic_orbit`).
+# op by op, each of their operations would compile a program of its own.
 @orbit_kernel
 def _phase_index(pmap: _PeriodMap, fixed_period: bool, x_guess, t0, args, fix, impact_surface):
     f_guess = pmap.scene.vector_field(t0, x_guess, args)
@@ -486,7 +485,7 @@ def _live_diagnostics(pmap, fixed_period, n, x0, T, t0, args, j):
 
 @orbit_kernel
 def _live_diagnostics_jvp(pmap, fixed_period, n, primals, tangents):
-    # (one compiled program: run op by op, a jacfwd outside jit spent ~40 s here)
+    # (one compiled program: outside jit, a jacfwd would run the JVP op by op)
     return jax.jvp(functools.partial(_live_diagnostics, pmap, fixed_period, n), primals,
                    tangents)
 

@@ -175,8 +175,7 @@ def run_pool(
 def _in_phases(cond, body, free_body, program, state, *, carry_of):
     """`while cond: body`, with `free_body` while no slot slides (as `simulate` does, see
     `_loop/forward.py: staged_log_loop`): a `ZenoStick` sweep that never slides pays nothing for
-    the sliding tests (1.17-1.18× a plain sweep, 1.05-1.06× with phases: ex1dof, 256
-    lanes, one core). `carry_of(state)` is the pool's carry."""
+    the sliding tests. `carry_of(state)` is the pool's carry."""
     if program.free_step is program.step:
         return lax.while_loop(cond, body, state)
     phases = sliding_phases(cond, body, free_body, lambda s: jnp.any(carry_of(s).stick))

@@ -21,17 +21,13 @@ Three methods (`method=`, or `search_method` around tracing for side-by-side ben
   the Newton step is down to the gap's rounding, points at least one ulp inwards close
   the bracket onto adjacent floats.
 
-Why Chandrupatla (grazejax issue 14, `benchmarks/bench_roots.py`): a sweep pays, per
+Why Chandrupatla (`benchmarks/bench_roots.py` measures the three): a sweep pays, per
 search, the slowest lane's iteration count times every lane's cost of one iteration, so
 both the count and the cost of an iteration matter. ITP shrinks the bracket from one side
-and only closes it by its bisection guarantee (iterations per call in single runs, mean /
-max: transversal 7.8 / 9, near grazing 9.9 / 13, Zeno 11.3 / 25); Newton takes fewer
-(4.2 / 5, 5.2 / 6, 7.5 / 10) but pays a jvp per iteration and had a longer tail over a
-random-phase sweep (max 38 against ITP's 21: near-grazing crossings converge linearly,
-like a double root), so it lost to ITP there (391 vs 641 µs per trajectory). Chandrupatla
-takes Newton's counts (4.8 / 6, 5.8 / 7, 5.9 / 11) at the cost of an ITP iteration: a
-2048-lane ex1dof sweep (Dopri8) went from 127 to 103 µs per trajectory in phase and from
-176 to 128 with random phases at rtol 1e-10 (189 → 162 and 276 → 205 at 1e-12).
+and only closes it by its bisection guarantee, so it takes many iterations; Newton takes
+fewer but pays a jvp per iteration and has a long tail over a random-phase sweep
+(near-grazing crossings converge linearly, like a double root). Chandrupatla takes about
+Newton's counts at the cost of an ITP iteration.
 """
 
 import contextlib

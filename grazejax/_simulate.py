@@ -233,7 +233,7 @@ def _run(scene, x0, t0, t1, args, *, saveat, direction, adjoint, max_steps, **op
     def cond(c):
         # Unbatched on purpose: under vmap, a batched predicate makes JAX select every
         # carry leaf per lane at every iteration, copying the whole impact log and save
-        # buffers (measured: 56 µs per lane-step with max_impacts = 400). Finished lanes
+        # buffers (the cost grows with max_impacts). Finished lanes
         # are frozen by `step` itself, so the loop can run until the last lane is done.
         return eqxi.unvmap_any(program.running(c))
 
@@ -241,9 +241,8 @@ def _run(scene, x0, t0, t1, args, *, saveat, direction, adjoint, max_steps, **op
     return program.finish(final)
 
 
-# A call outside jit used to run the loop's `while` as its own program, traced and compiled
-# again at every call (~1.5 s each for ex1dof, 20 impacts), with everything around it
-# dispatched op by op. As one jitted program, a repeated call with the same scene and
+# Outside jit, the loop's `while` would run as its own program, traced and compiled again
+# at every call, with everything around it dispatched op by op. As one jitted program, a repeated call with the same scene and
 # options runs at once (x0, t0, t1, array args and Python floats in args are inputs; the
 # input checks already trace scene functions with abstract `args`, so no scene can read a
 # float of `args` in Python, and passing the floats as inputs changes no scene's behaviour).
@@ -284,8 +283,8 @@ def run_loop(cond, program: "Program", init, adjoint, max_steps: int):
             checkpoints, buffers=True)
         return unpack(final)
     # DirectAdjoint: nested scans whose recomputation replays the step decisions
-    # (`_loop/bounded.py`). The log stays in the carry: as Equinox buffers it took 8–10×
-    # the primal at 10 impacts against 4.6× (separate runs on a loaded machine).
+    # (`_loop/bounded.py`). The log stays in the carry: as Equinox buffers it cost about
+    # twice as much (`benchmarks/README.md`).
     return bounded_while_loop(cond, program.step, init, max_steps + 1)
 
 

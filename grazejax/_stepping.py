@@ -42,7 +42,7 @@ class IntegralController(diffrax.PIDController):
 
     The same decisions as Diffrax's, the power taken as exp(log(·)/order): XLA's CPU
     backend calls the scalar libm `pow` for a power, lane by lane, but vectorises exp and
-    log; `pow` was 6% of an in-phase ex1dof sweep (Dopri8, 2048 lanes; grazejax issue 14).
+    log, and `pow` was a visible share of a sweep's time.
     The step factor differs from Diffrax's by an ulp or so. With other coefficients, or
     with dtmin/dtmax, Diffrax's own `adapt_step_size` runs.
     """
@@ -91,12 +91,10 @@ def error_norm(norm, ratio):
 
     `optx.rms_norm` takes the sum of squares as a `dot`. Under `vmap` that is one dot per
     lane over the state's n entries, which XLA:CPU runs as a reduction kernel of its own
-    (a YNNPACK fusion) at every step: in an ex1dof sweep (2048 lanes, n = 2, Dopri8 at
-    2e-12, one core) the terms written out took 52 µs per trajectory in phase against
-    56.5, 75 against 79 at random phases, as an elementwise part of the controller's
-    kernels (grazejax issue 14). The sum differs from the dot's in the last bit in some
-    lanes (the dot's reduction rounds in another order), so step sizes may differ by an
-    ulp (the golden runs moved by up to 3e-15). The controller's decisions
+    (a YNNPACK fusion) at every step; the terms written out are an elementwise part of
+    the controller's kernels instead. The sum differs from the dot's in the last bit in
+    some lanes (the dot's reduction rounds in another order), so step sizes may differ by
+    an ulp. The controller's decisions
     carry no derivative, hence the `stop_gradient` (no NaN tangent of √0 either).
     """
     if norm is not optx.rms_norm or not isinstance(ratio, jax.Array) or ratio.ndim != 1 or (

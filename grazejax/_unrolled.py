@@ -3,12 +3,9 @@
 Diffrax runs the stages of every Runge–Kutta step as a loop (`eqxi.while_loop`, one
 iteration per stage: the loop lets one code path serve explicit and implicit tableaus and
 bounds what reverse mode stores). Inside grazejax's impact loop that inner loop costs more
-than the arithmetic it runs (grazejax issue 14). An explicit tableau needs no loop: each
-stage is a fixed linear combination of the previous ones, so the step is written out as
-straight-line code that XLA fuses. Measured on ex1dof (μ = 0.2, 10 impacts, Dopri8 at
-rtol = atol = 1e-12, one core): a 512-lane sweep went from 342 to 201 µs per trajectory in
-phase and from 417 to 289 with random phases; a single run from 2.20 to 1.33 ms.
-Straight-line code also differentiates in both modes (forward mode cannot enter a
+than the arithmetic it runs. An explicit tableau needs no loop: each stage is a fixed
+linear combination of the previous ones, so the step is written out as straight-line code
+that XLA fuses (`benchmarks/README.md`: sweeps and single runs both gain). Straight-line code also differentiates in both modes (forward mode cannot enter a
 checkpointed stage loop, reverse mode cannot enter a `lax` one), so the same step serves
 `jax.jacfwd` and `jax.grad`.
 
@@ -40,12 +37,10 @@ def _weighted_sum(weights, ks):
 
     Straight-line products and adds fuse into one loop per stage. Diffrax's form, a
     contraction with the stacked stages (`tensordot`), is a dot per stage that XLA's CPU
-    backend does not fuse: under `vmap` over 2048 lanes a Dopri8 step cost 150 ns per lane
-    against 21 ns for this sum (grazejax issue 14). The order is chosen for rounding: a
-    sequential chain w₀k₀ + w₁k₁ + … let an elastic ball's speed gain 0.05 ulp per bounce
-    with Dopri8 (impact-time error 1.5e-12 after 400 bounces); the contraction 0.03
-    (1.2e-12); the tree 0.009 (2.3e-13), and 1.4 instead of 6.4 ulps with Dopri5
-    (`tests/hard/energy_drift.py`, AMD EPYC with AVX-512).
+    backend does not fuse (under `vmap` it costs several times this sum). The order is
+    chosen for rounding: a sequential chain w₀k₀ + w₁k₁ + … lets an elastic ball's speed
+    drift faster per bounce than the contraction, and a balanced tree less than either
+    (`tests/hard/energy_drift.py` measures it).
     """
     weights = np.asarray(weights)
     weighted = zip(weights, ks[: len(weights)], strict=True)
@@ -116,9 +111,8 @@ class UnrolledERK(diffrax.AbstractAdaptiveSolver):
             # lane), and a re-evaluated f(t0, y0) need not have the stored value's bits
             # (it is compiled in another context than the last stage's): a lane's result
             # then moved with its neighbours' impacts and with the batch's shape (sweeps on
-            # 4 devices vs 1 differed by 1e-14 in impact times). One more field evaluation
-            # per step, measured within noise on single runs of ex1dof and of a
-            # 40-oscillator field (grazejax issue 14).
+            # 4 devices vs 1 differed in the last digits of impact times). One more field
+            # evaluation per step, within the noise of single runs.
             needs_f0 = first_step | made_jump
             f0 = jnp.where(needs_f0, terms.vf(t0, y0, args), f0)
         ks = [terms.prod(f0, dt)]

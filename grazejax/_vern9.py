@@ -2,9 +2,8 @@
 
 At tight tolerances a sweep's cost is set by the number of steps more than by the stages
 in each: inside the impact loop every step also pays for the event test, the controller
-and the loop's own bookkeeping (grazejax issue 14). A ninth-order pair takes fewer steps
-than Dormand–Prince 8(7) for the same error (how many fewer, and at what price per step,
-is measured in `Vern9`'s docstring).
+and the loop's own bookkeeping. A ninth-order pair takes fewer steps than Dormand–Prince
+8(7) for the same error, each dearer (`benchmarks/README.md` measures both).
 
 The pair is J. H. Verner's "most efficient" 9(8) pair (Verner, *Numerically optimal
 Runge–Kutta pairs with interpolants*, Numer. Algorithms 53 (2010) 383–396; coefficients
@@ -156,9 +155,8 @@ class Vern9(diffrax.AbstractERK):
 
     Ninth order, eighth-order error estimate, 16 new vector-field evaluations per step
     (FSAL) and 4 more for the dense output that event location reads. At tight
-    tolerances it takes fewer steps than `diffrax.Dopri8`, each dearer: measured on
-    near-grazing ex1dof sweeps (a cheap 2-d field, impact-time error 1e-10) 20% fewer steps
-    and 1.4× the time, so Dopri8 stays the choice there. Consider it where vector-field
+    tolerances it takes fewer steps than `diffrax.Dopri8`, each dearer: with a cheap field
+    (near-grazing ex1dof sweeps) Dopri8 stays faster. Consider it where vector-field
     evaluations dominate the cost of a step.
     """
 

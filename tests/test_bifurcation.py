@@ -124,7 +124,8 @@ def test_autonomous_period_doubling_matches_the_forced_one():
 
 @pytest.mark.slow
 def test_reverse_mode_equals_forward_mode():
-    """jax.grad of Γ_PD(e) through DirectAdjoint equals jacfwd and the closed form."""
+    """jax.grad of Γ_PD(e) through DirectAdjoint, under jit, equals the closed form (and so
+    jacfwd's, tested above)."""
     gamma, d_gamma = period_doubling_closed(E)
     start = guess("period-doubling", gamma - 0.01)
 
@@ -132,7 +133,7 @@ def test_reverse_mode_equals_forward_mode():
         return gj.locate_bifurcation(TABLE, start, args_of, e, rtol=1e-11,
                                      adjoint=diffrax.DirectAdjoint()).mu
 
-    np.testing.assert_allclose(float(jax.grad(mu)(E)), d_gamma, rtol=1e-7)
+    np.testing.assert_allclose(float(jax.jit(jax.grad(mu))(E)), d_gamma, rtol=1e-7)
 
 
 def test_bialternate_square_has_the_pairwise_products():

@@ -22,9 +22,8 @@ decisions (step accepted, next step size) are named (`replay.decision`), and the
 policy saves exactly those (a few bytes per step): the recomputation takes the first
 pass's steps, and the gradient agrees with forward mode to round-off. (The checkpointed
 loops of `RecursiveCheckpointAdjoint`, which are not `jax.checkpoint`, replay a record
-of the decisions instead: `reverse.py: checkpointed_deciding`.) Also measured: 5.8× /
-6.9× the primal at 10 / 100 impacts (forced impact oscillator, one core) against 6.3× /
-7.3× with Equinox's loop.
+of the decisions instead: `reverse.py: checkpointed_deciding`.) It is also a little
+faster than Equinox's loop (`benchmarks/README.md`).
 """
 
 import equinox.internal as eqxi

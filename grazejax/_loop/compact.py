@@ -4,8 +4,8 @@ A lane runs an expensive phase (the in-step root searches, a landing) only on so
 loop iterations. Written per lane as `lax.cond(need, phase, nothing)`, it becomes under
 `jax.vmap` a `select` over *both* branches for every lane, or, guarded by `unvmap_any`,
 the phase for every lane whenever any lane needs it. With random phases some lane needs it
-on almost every iteration, so every lane paid for every other lane's events: 3.6× the cost
-of lanes in phase (grazejax issue 14).
+on almost every iteration, so every lane paid for every other lane's events, several
+times the cost of lanes in phase.
 
 `per_lane(phase, need, operands, nothing)` is that `cond` for one lane, and a
 `jax.custom_batching.custom_vmap` rule for a batch: the lanes that need the phase are
@@ -37,12 +37,8 @@ from jax.custom_batching import custom_vmap
 
 # The sub-batch is 1/SHARE of the batch, and at least MIN_WIDTH lanes: with random phases
 # a few percent of the lanes of an ex1dof sweep need a search on a given iteration (one or
-# two searches and one landing per impact, ~30 steps per impact). An eighth was chosen
-# first (a sixteenth measured no better then); once the searches closed their brackets in
-# a few iterations and the kernels took 512-bit vectors, a sixteenth took 48-53 µs per
-# trajectory against 58-61 for an eighth (2048 random-phase lanes, Dopri8 2e-12, one core,
-# alternately; 1/32 and 1/64 ~52 µs), lanes in phase unchanged within noise (grazejax
-# issue 14).
+# two searches and one landing per impact, ~30 steps per impact). A sixteenth measured
+# best against an eighth, a thirty-second and a sixty-fourth (`benchmarks/README.md`).
 SHARE = 16
 MIN_WIDTH = 8
 
@@ -152,8 +148,7 @@ def _compacted(phase, nothing, batch, need, operands, axes):
             # The lanes that need the phase, in lane order, padded with `batch` (out of
             # range: their gathers are clamped and their scatters dropped). Built here,
             # under the `cond` below: built at every iteration, its cumsum and scatter
-            # cost an in-phase sweep ~7%, where most iterations need no phase (grazejax
-            # issue 14).
+            # cost an in-phase sweep, where most iterations need no phase.
             queue = jnp.nonzero(need, size=rounds * width, fill_value=batch)[0]
 
             def more(carry):
@@ -180,9 +175,7 @@ def _pick(operands, axes, lanes, batch):
 
     Lanes that follow each other (all of them in phase, and runs of neighbours otherwise)
     are one slice of every operand; others are gathered. The gathers are separate kernels,
-    one per operand: an ex1dof sweep in phase (2048 lanes, Dopri8 at 2e-12, one core) took
-    37.5 µs per trajectory with the slices against 39.6 with gathers only, random phases
-    48.7 against 50.0 (the same bits; in one process, alternately). The scatter of the
+    one per operand, slower than slices (the same bits). The scatter of the
     results stays: as a `cond` between it and an in-place slice update, XLA copied every
     lane's results at every round, which cost more than it saved.
     """

@@ -29,15 +29,14 @@ def staged_log_loop(cond, program: "Program", init):
     the inner body then touches no buffer over XLA:CPU's 512-byte threshold for running
     its kernels in sequence (see `stage_log`); the outer body runs once per impact.
 
-    Only where it gains (measured on ex1dof, t ∈ [0, 60], 9 impacts): a single run or its
-    `jacfwd` with a 100-row log took 0.59-0.65× the time of the plain loop, an unused log
-    0.96-1.03× (XLA drops it either way). Not under `vmap`: every iteration there already
-    touches large buffers, and the outer loop would stop whenever any lane impacts (a
-    64-lane vmap took 1.26×). A small log (≤ 512 bytes) needs none of it.
+    Only where it gains: a single run or its `jacfwd` with a large log (an unused log costs
+    nothing either way: XLA drops it). Not under `vmap`: every iteration there already
+    touches large buffers, and the outer loop would stop whenever any lane impacts. A small
+    log (≤ 512 bytes) needs none of it.
 
     With `ZenoStick`, the steps while no lane slides are `program.free_step` (no sliding
-    field, no search for the end of sliding: a run that never slides paid 1.25× for the
-    two per-step tests at batch 1, grazejax issue 14), and `program.step` runs from the
+    field, no search for the end of sliding: a run that never slides would pay for the
+    two per-step tests), and `program.step` runs from the
     landing that starts sliding until no lane slides; under `vmap` too (the phase changes
     only when a lane starts or ends sliding). Same values either way: `step`'s tests pick
     exactly `free_step`'s computation while nothing slides.

@@ -83,7 +83,7 @@ def as_zeno_policy(zeno) -> AbstractZenoPolicy:
 def sliding_phases(cond, step, free_step, slides):
     """A loop body that runs `free_step` while `cond` holds and nothing `slides`, then
     `step` while `cond` holds and something does: a `ZenoStick` loop pays for the sliding
-    tests only while a lane slides (`simulate`'s and `sweep`'s loops, grazejax issue 14)."""
+    tests only while a lane slides (`simulate`'s and `sweep`'s loops)."""
 
     def phases(state):
         state = lax.while_loop(lambda z: cond(z) & ~slides(z), free_step, state)

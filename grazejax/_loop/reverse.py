@@ -197,9 +197,8 @@ def every_step_staged(cond, program: "Program", init, bound: int):
     carries one landing's rows, and each iteration moves the rows its step wrote to the
     full log (the loop's write-once buffers) after the step. The step itself, and its VJP,
     then run in a nested computation with small buffers only (`_nested`), while the full
-    log is written outside it. Forced impact oscillator, 1000-row log, one core, min of 7,
-    the previous commit alternately: 4.9/5.2× → 3.7/3.6× the primal at 10 impacts,
-    5.7/5.6× → 4.0/3.9× at 100; the same results and gradients (`tests/test_reverse.py`)."""
+    log is written outside it: a gradient with a large log costs less than with the log in
+    the step's buffers, with the same results (`tests/test_reverse.py`)."""
     staged, full_log = stage_log(init, program.log_rows_per_landing)
     pack, unpack = packing(staged)
 
@@ -296,8 +295,8 @@ def checkpoint_count(checkpoints: int | None, max_steps: int) -> int | None:
     The loop runs up to `max_steps + 1` iterations (the last one marks MAX_STEPS), and
     Equinox's checkpointed loop takes its fast path (no recomputation, no checkpoint
     schedule in the backward pass) only when the checkpoints equal its step bound: a user's
-    `RecursiveCheckpointAdjoint(checkpoints=max_steps)` missed it by one and cost 8.9× the
-    primal instead of 5.2× (forced impact oscillator, 10 impacts, max_steps = 1000).
+    `RecursiveCheckpointAdjoint(checkpoints=max_steps)` would miss it by one and cost
+    much more.
     """
     if checkpoints is not None and checkpoints >= max_steps:
         return max_steps + 1

@@ -221,19 +221,16 @@ def write_log_rows(log, row, t, rows, skip_unwritten=False):
     slot, all at time `t`): the applied slots, in order, from `row` on.
 
     One scatter per buffer for all slots (not one write per slot): each write is a kernel
-    run at every iteration, applied or not, and a sliding policy's extra slot cost a
-    single run ~5% (grazejax issue 14).
+    run at every iteration, applied or not.
 
     The writes run only on iterations where some lane writes a row (most iterations land
     no lane): always for several slots (a sliding policy's second slot, a scatter per
-    buffer, made a run that never slides cost 1.08-1.10× at batch 1 and 256, 0.99-1.03×
-    without), for one slot with `skip_unwritten` (a batched loop). Under `vmap` each write
-    is a scatter over the batch: an ex1dof sweep (2048 lanes, Dopri8 2e-12, one core) took
-    43-44 µs per trajectory in phase against 50, 65-67 against 72 at random phases. For
-    one trajectory the single write is a small in-place update, and through a conditional
-    `jacfwd` of a run's final state took 1.1-1.25× (measured): XLA no longer drops a log
-    nobody reads. Batched, that costs `vmap(jacfwd)` of final states 1.03× (256 ex1dof
-    lanes, Tsit5 1e-10: 307-308 → 316 µs per lane) where a returned log gains 1.06×.
+    buffer, otherwise costs a run that never slides), for one slot with `skip_unwritten`
+    (a batched loop, where each write is a scatter over the batch). For one trajectory the
+    single write is a small in-place update, and through a conditional XLA would no longer
+    drop a log nobody reads (a `jacfwd` of a final state would pay for it). Batched, the
+    conditional costs `vmap(jacfwd)` of final states a little and gains more where the
+    log is returned (`benchmarks/README.md`).
     """
     apply = rows[0]
     if not isinstance(log[0], jax.Array):
@@ -281,9 +278,9 @@ def stage_log(c: LoopState, rows: int):
     Why: XLA:CPU runs a loop body's kernels one after another only if none of them touches
     a buffer over 512 bytes (`ThunkExecutor::Options::execute_sequential_buffer_threshold`,
     fixed in `CpuExecutable::Create`, no flag); otherwise every iteration pays for its
-    dataflow executor (~2 µs per iteration of ~3 µs at batch 1, measured). The log's rows
-    are written in the body, so a log of more than 32 two-dimensional rows (the default
-    holds 100) made every single-trajectory run 1.5-1.7× slower. A staging log of one
+    dataflow executor (most of an iteration's time at batch 1). The log's rows are written
+    in the body, so a log of more than 32 two-dimensional rows (the default holds 100)
+    would make every single-trajectory run much slower. A staging log of one
     landing's rows keeps the body under the threshold; the loop stops when a lane has staged
     a row, and the rows go to the full log outside it (`forward.py: staged_log_loop`).
 

@@ -58,7 +58,7 @@ def take_step(ctx: LoopContext, c: LoopState, slides: bool = True, forced=None,
     if ctx.sticky and slides:
         # The sliding field only while some lane slides: decided once per step, not per
         # stage (the field's own `cond`, evaluated in each of the 6–13 stages, made
-        # zeno="stick" cost 1.52× in runs that never slide: grazejax issue 14). The free
+        # zeno="stick" cost half as much again in runs that never slide). The free
         # field is the sliding field's no-lane-slides branch: results are unchanged.
         y1, y_error, dense_info, solver_state1, _ = lax.cond(
             eqxi.unvmap_any(jnp.any(c.stick)),
