@@ -44,7 +44,7 @@ from ._orbit_common import (
     jacobian_in_one_pass,
     period_map_jacobian,
 )
-from ._periodic import OrbitStatus, eigvals_sorted
+from ._periodic import OrbitStatus, diagnostics_map, eigvals_sorted, poincare_matrix
 from ._scene import Scene
 from ._tangents import without_derivative
 from ._validate import is_concrete
@@ -107,11 +107,7 @@ def test_function(kind: str, fixed_period: bool, monodromy, jac_T, j):
     if kind == "period-doubling":
         return jnp.linalg.det(monodromy + eye)
     if kind == "fold":
-        if fixed_period:
-            return jnp.linalg.det(monodromy - eye)
-        free = jnp.arange(n - 1) + (jnp.arange(n - 1) >= j)
-        return jnp.linalg.det(jnp.concatenate([jac_T[:, None], (monodromy - eye)[:, free]],
-                                              axis=1))
+        return jnp.linalg.det(poincare_matrix(fixed_period, n, j, monodromy, jac_T))
     if kind == "neimark-sacker":
         square = bialternate_square(monodromy)
         return jnp.linalg.det(square - jnp.eye(square.shape[0], dtype=square.dtype))
@@ -258,8 +254,7 @@ def _assess(system: _System, x, T, mu, nu, converged, finite, num_steps):
     args = system.args_of(mu, nu)
     zeros = jax.tree.map(jnp.zeros_like, args)
     x_end, monodromy, jac_T, _, ok, _ = period_map_jacobian(
-        dataclasses.replace(system.pmap, adjoint=_diagnostic_adjoint(system.pmap.adjoint)),
-        x, system.t0, T, args, zeros)
+        diagnostics_map(system.pmap, system.pmap.adjoint), x, system.t0, T, args, zeros)
     tau = test_function(system.kind, system.fixed_period, monodromy, jac_T, system.j)
     residual = jnp.max(jnp.abs(jax.lax.stop_gradient(x_end - x)))
     S = OrbitStatus
@@ -271,9 +266,3 @@ def _assess(system: _System, x, T, mu, nu, converged, finite, num_steps):
         residual=without_derivative(residual, (x, mu, nu)),
         status=status.astype(jnp.int32), num_steps=jnp.asarray(num_steps),
     )
-
-
-def _diagnostic_adjoint(adjoint):
-    """The diagnostics' runs: the orbit's own adjoint where it reverses (jax.grad of a
-    multiplier), else the forward-mode loop."""
-    return adjoint if loop_kinds(adjoint).reverse else None

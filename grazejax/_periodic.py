@@ -445,7 +445,13 @@ def _solution_point(fixed_period: bool, value, y0, T_guess, j, c):
     return _snap(y[1:], j, c), y[0], finite_y
 
 
-def _poincare_matrix(fixed_period, n, j, monodromy, jac_T):
+def diagnostics_map(pmap: _PeriodMap, adjoint) -> _PeriodMap:
+    """The period map for the diagnostics' derivatives: the orbit's adjoint where it reverses
+    (`jax.grad` of a multiplier transposes them), else the forward-mode loop."""
+    return dataclasses.replace(pmap, adjoint=adjoint if loop_kinds(adjoint).reverse else None)
+
+
+def poincare_matrix(fixed_period, n, j, monodromy, jac_T):
     """The (A6) matrix: U − I, or [∂P/∂T, (U − I) without column j] with a free period."""
     if fixed_period:
         return monodromy - jnp.eye(n)
@@ -476,7 +482,7 @@ def _live_diagnostics(pmap, fixed_period, n, x0, T, t0, args, j):
     """The `_DIFFERENTIABLE` diagnostics as functions of the orbit."""
     zeros = jax.tree.map(jnp.zeros_like, args)
     _, monodromy, jac_T, _, _, sol = period_map_jacobian(pmap, x0, t0, T, args, zeros)
-    a6 = _poincare_matrix(fixed_period, n, j, monodromy, jac_T)
+    a6 = poincare_matrix(fixed_period, n, j, monodromy, jac_T)
     return dict(monodromy=monodromy, multipliers=eigvals_sorted(monodromy),
                 poincare_matrix=a6, poincare_determinant=jnp.linalg.det(a6),
                 impact_times=sol.impact_times, impact_pre=sol.impact_pre,
@@ -498,7 +504,7 @@ def _assess(pmap, fixed_period, n, j, fix, f_guess, x_guess, x0, period, t0, arg
     x_end, monodromy, jac_T, ok, sol = lin[:5]
     x_fixed = lax.stop_gradient(x0)
     gap = x_end - x_fixed
-    a6 = _poincare_matrix(fixed_period, n, j, monodromy, jac_T)
+    a6 = poincare_matrix(fixed_period, n, j, monodromy, jac_T)
     j_out = jnp.array(-1) if fixed_period else j
     f_scale = jnp.max(jnp.abs(f_guess))
     f_end = pmap.scene.vector_field(t0, x_fixed, lax.stop_gradient(args))
@@ -766,10 +772,8 @@ def find_periodic_orbit(
     lin = _linearize(pmap, x_const, t0, T_const, args_const)
     out = _assess(pmap, fixed_period, n, j, fix_arg, f_guess, x_guess, x_const, T_const, t0,
                   args_const, converged, finite_y, lin, requested)
-    # (with a reverse-capable adjoint, the diagnostics' derivatives take it too: jax.grad
-    # of a multiplier transposes them)
-    pmap_live = dataclasses.replace(pmap, adjoint=adjoint) if loop_kinds(adjoint).reverse else pmap
-    out = _differentiable_diagnostics(pmap_live, fixed_period, n, out, x0, T, t0_live, args, j)
+    out = _differentiable_diagnostics(diagnostics_map(pmap, adjoint), fixed_period, n, out,
+                                      x0, T, t0_live, args, j)
     t0 = t0_live
     if user_root_finder:
         newton_rtol, newton_atol = (_host_float(getattr(root_finder, name, math.nan))
