@@ -194,8 +194,8 @@ def orbit_kernel(fn):
     `jit` keys its programs on weak types too, and the same time or state reached these
     kernels weak-typed from one caller (`jnp.asarray(0.0)`, a Python float's result) and
     strong from another, and each kernel compiled twice. Weak-typed arrays are made strong
-    first (the orbit code works in
-    the float64 its inputs are converted to, so the promotion rules do not change).
+    first (the orbit code works in the float64 its inputs are converted to, so the
+    promotion rules do not change).
     """
     jitted = single_run_jit(fn)
 
@@ -233,7 +233,8 @@ def _linearize(pmap: _PeriodMap, x, t0, T, args, args_dot=None):
 
 @orbit_kernel
 def _linearize_all(pmap: _PeriodMap, x, t0, T, args, args_dot):
-    return period_map_jacobian(pmap, *lax.stop_gradient((x, t0, T, args, args_dot)))
+    x, T, args, args_dot = lax.stop_gradient((x, T, args, args_dot))
+    return period_map_jacobian(pmap, x, t0, T, args, args_dot)
 
 
 def period_map_jacobian(pmap: _PeriodMap, x, t0, T, args, args_dot):

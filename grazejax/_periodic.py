@@ -469,11 +469,9 @@ def _differentiable_diagnostics(pmap, fixed_period, n, out, x0, T, t0, args, j):
     """`out` (computed on constants) with true derivatives for the fields that have them
     (a second derivative of the flow, computed only when asked for) and NaN for the
     residual, so that no diagnostic differentiates to a silent 0."""
-    live = functools.partial(_live_diagnostics, pmap, fixed_period, n)
     primals = (x0, T, t0, args, j)
-    values = with_forward_tangents(live, {k: out[k] for k in _DIFFERENTIABLE}, primals,
-                                   jvp=functools.partial(_live_diagnostics_jvp, pmap,
-                                                         fixed_period, n))
+    jvp = functools.partial(_live_diagnostics_jvp, pmap, fixed_period, n)
+    values = with_forward_tangents(jvp, {k: out[k] for k in _DIFFERENTIABLE}, primals)
     residual = without_derivative(out["residual"], primals[:4])
     return {**out, **values, "residual": residual}
 

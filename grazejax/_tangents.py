@@ -11,16 +11,14 @@ import jax
 import jax.numpy as jnp
 
 
-def with_forward_tangents(fn, values, primals, jvp=None):
-    """`values` (equal to `fn(*primals)`, computed without derivatives), whose tangents are
-    those of `fn` at `primals`: the forward-mode derivative is computed only when asked for.
+def with_forward_tangents(jvp, values, primals):
+    """`values` (computed without derivatives) with the tangents `jvp(primals, tangents)[1]`:
+    `jvp` is the forward-mode derivative of the function that computed them (e.g. a compiled
+    `jax.jvp`), run only when asked for.
 
-    `jvp(primals, tangents)`, if given, is `jax.jvp(lambda p: fn(*p), ...)` compiled once.
-    `fn`'s own computation must be differentiable in forward mode; under `jax.grad` a
-    tangent that needs the transpose of a loop raises JAX's own error (never a 0).
+    Under `jax.grad` a tangent that needs the transpose of a loop raises JAX's own error
+    (never a 0).
     """
-    if jvp is None:
-        jvp = lambda p, t: jax.jvp(lambda pr: fn(*pr), (p,), (t,))  # noqa: E731
 
     @jax.custom_jvp
     def attach(values, primals):
