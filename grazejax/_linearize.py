@@ -30,14 +30,16 @@ spaces); with `diffrax.RecursiveCheckpointAdjoint()` or `diffrax.DirectAdjoint()
 and `flow_jacobian` uses `jax.jacrev` where forward mode is unavailable. The pointwise
 analyses below (τ_i, W_i, classification) are forward mode only.
 
-**Status, not NaN.** Every result carries a [`grazejax.DerivativeStatus`][]. Near grazing
-∇Φ·f → 0 and the true derivatives grow without bound (like 1/(∇Φ·f)); they are returned
-as computed. At an exactly tangential contact the derivative does not exist: the result
-holds the (N2) one-sided value (no jump: B = O, S = I) and the status `GRAZING`; use
-[`grazejax.one_sided_jacobians`][] for the (N1) side. Divisions by ∇Φ·f use the
-double-`where` so that no NaN reaches a tangent. Values are NaN only together with the
-status `UNDEFINED` (Φ_i, f or J_i, or their derivatives, are not finite at the point: outside
-`jit` this raises a `ValueError` instead) or `SIMULATION_FAILED`.
+**Every result has a status.** Every result carries a [`grazejax.DerivativeStatus`][]. Near
+grazing ∇Φ·f → 0 and the true derivatives grow without bound (like 1/(∇Φ·f)); they are
+returned as computed. At an exactly tangential contact the derivative does not exist: the
+pointwise analyses (τ_i, W_i) hold the (N2) one-sided value (no jump: B = O, S = I), a run's
+flow Jacobian and gradient are NaN (the event time of a touch has no derivative: `simulate`
+gives it a NaN tangent), each with the status `GRAZING`; use
+[`grazejax.one_sided_jacobians`][] for the one-sided linearizations. Divisions by ∇Φ·f use
+the double-`where` so that no NaN reaches a tangent elsewhere. Values are otherwise NaN only
+together with the status `UNDEFINED` (Φ_i, f or J_i, or their derivatives, are not finite at
+the point: outside `jit` this raises a `ValueError` instead) or `SIMULATION_FAILED`.
 """
 
 from __future__ import annotations

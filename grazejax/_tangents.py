@@ -44,3 +44,21 @@ def without_derivative(value, deps):
 def _without_derivative_jvp(primals, tangents):
     value, _ = primals
     return value, jnp.full(jnp.shape(value), jnp.nan, jnp.result_type(value))
+
+
+@jax.custom_jvp
+def undefined_derivative(value, undefined):
+    """`value`, whose derivative is NaN where `undefined` (a boolean array) holds, itself
+    elsewhere: for a value that has no derivative where it is computed (an event time at a
+    tangential contact). The rule is linear in the tangent (a factor NaN or 1), so reverse
+    mode, which transposes it, gives NaN there too and the plain cotangent elsewhere (a
+    `jnp.where` between two branches would send NaN · 0 = NaN into both)."""
+    return value
+
+
+@undefined_derivative.defjvp
+def _undefined_derivative_jvp(primals, tangents):
+    value, undefined = primals
+    value_dot, _ = tangents
+    factor = jnp.where(undefined, jnp.nan, 1.0).astype(jnp.result_type(value))
+    return value, factor * value_dot

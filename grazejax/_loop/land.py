@@ -10,6 +10,7 @@ import jax.numpy as jnp
 from .._geometry import FLOOR_ULPS, is_tangential
 from .._roots import safe_divide
 from .._status import Status
+from .._tangents import undefined_derivative
 from .compact import if_any_lane, per_lane
 from .context import LoopContext
 from .field import field_jumps
@@ -196,7 +197,11 @@ def _newton_event_time(ctx: LoopContext, c: LoopState, y_star, sa, s_star):
                        (s_star, y_star), (jnp.ones_like(s_star), f_star))
     s_event = s_star + delta + bend * q
     y_event = y_star + f_star * (delta + bend * q) + 0.5 * f_dot * q
-    return s_event, y_event
+    # At a tangential contact the event time is not differentiable (it moves like the
+    # square root of a parameter on one side, not at all on the other): its derivatives,
+    # and the state's, are NaN there, never the 0 of a Newton step that was not taken.
+    touching = jnp.any(c.pending & c.touch)
+    return jax.tree.map(lambda v: undefined_derivative(v, touching), (s_event, y_event))
 
 
 def _met_together(ctx: LoopContext, c: LoopState, t_event, y_event, flight_scale, step_ulps):
