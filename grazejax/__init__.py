@@ -10,12 +10,14 @@ jax.config.update("jax_enable_x64", True)
 
 from ._bifurcation import BifurcationPoint as BifurcationPoint
 from ._bifurcation import locate_bifurcation as locate_bifurcation
+from ._bifurcation_curve import BifurcationCurve as BifurcationCurve
+from ._bifurcation_curve import Codim2Point as Codim2Point
+from ._bifurcation_curve import continue_bifurcation as continue_bifurcation
 from ._compiler import compiler_options as compiler_options
 from ._conditions import ConditionReport as ConditionReport
 from ._conditions import ConditionResult as ConditionResult
 from ._conditions import check_conditions as check_conditions
 from ._continuation import Branch as Branch
-from ._continuation import ContinuationStatus as ContinuationStatus
 from ._continuation import GrazingPoint as GrazingPoint
 from ._continuation import SpecialPoint as SpecialPoint
 from ._continuation import continue_orbit as continue_orbit
@@ -71,6 +73,7 @@ from ._scene import Surface as Surface
 from ._simulate import simulate as simulate
 from ._solution import SimulationError as SimulationError
 from ._solution import Solution as Solution
+from ._status import ContinuationStatus as ContinuationStatus
 from ._status import ImpactKind as ImpactKind
 from ._status import Status as Status
 from ._sweep import sweep as sweep

@@ -25,8 +25,8 @@ iterations.
 
 from __future__ import annotations
 
-import dataclasses
 import itertools
+from typing import Any
 
 import diffrax
 import equinox as eqx
@@ -39,9 +39,11 @@ from jaxtyping import Array, Complex, Float, Int
 from ._adjoint import loop_kinds
 from ._orbit_common import (
     _ATOL_PER_RTOL,
+    _newton_for,
     _PeriodMap,
     _state_scale,
     jacobian_in_one_pass,
+    orbit_kernel,
     period_map_jacobian,
 )
 from ._periodic import OrbitStatus, diagnostics_map, eigvals_sorted, poincare_matrix
@@ -63,6 +65,7 @@ class BifurcationPoint(eqx.Module):
     - `multipliers`: of its monodromy, modulus descending.
     - `test_value`: the kind's test function at the solution (≈ 0).
     - `residual`: max |P(x0) − x0| at the solution (no derivative: NaN).
+    - `num_impacts`: impacts per period of the orbit.
     - `status`: an [`grazejax.OrbitStatus`][] code (`SUCCESS`, `NO_CONVERGENCE`,
       `DIVERGED`, `SIMULATION_FAILED`); `num_steps`: Newton iterations.
 
@@ -79,6 +82,7 @@ class BifurcationPoint(eqx.Module):
     multipliers: Complex[Array, " n"]
     test_value: Float[Array, ""]
     residual: Float[Array, ""]
+    num_impacts: Int[Array, ""]
     status: Int[Array, ""]
     num_steps: Int[Array, ""]
 
@@ -114,32 +118,36 @@ def test_function(kind: str, fixed_period: bool, monodromy, jac_T, j):
     raise ValueError(f"kind must be one of {KINDS}, got {kind!r}")
 
 
-@dataclasses.dataclass(frozen=True)
-class _System:
-    """The defining system's static parts: `residual(y, (nu, c))` with y = (x, μ) (fixed
-    period) or (T, x, μ) (free period, phase condition x_j = c)."""
+class _System(eqx.Module):
+    """The defining system's static parts: `residual(y, (nu, c, t0, T))` with y = (x, μ)
+    (fixed period) or (T, x, μ) (free period, phase condition x_j = c). A Module of static
+    fields: equal systems (the same scene, kind and parameter functions) share their
+    compiled programs."""
 
-    pmap: _PeriodMap
-    kind: str
-    fixed_period: bool
-    args_of: object
-    period_of: object
-    t0: float
-    j: int
+    pmap: _PeriodMap = eqx.field(static=True)
+    kind: str = eqx.field(static=True)
+    fixed_period: bool = eqx.field(static=True)
+    args_of: Any = eqx.field(static=True)
+    period_of: Any = eqx.field(static=True)  # None: the period T of the parameters
+    j: int = eqx.field(static=True)
 
     def split(self, y):
         if self.fixed_period:
             return y[:-1], None, y[-1]
         return y[1:-1], y[0], y[-1]
 
+    def period(self, T, mu, nu):
+        """A forced orbit's period at (μ, ν): `period_of`'s, else the fixed T."""
+        return T if self.period_of is None else self.period_of(mu, nu)
+
     def residual(self, y, params):
-        nu, c = params
+        nu, c, t0, T_fixed = params
         x, T, mu = self.split(y)
         if self.fixed_period:
-            T = self.period_of(mu, nu)
+            T = self.period(T_fixed, mu, nu)
         args = self.args_of(mu, nu)
         zeros = jax.tree.map(jnp.zeros_like, args)
-        x_end, monodromy, jac_T, _, ok, _ = period_map_jacobian(self.pmap, x, self.t0, T, args,
+        x_end, monodromy, jac_T, _, ok, _ = period_map_jacobian(self.pmap, x, t0, T, args,
                                                                 zeros)
         tau = test_function(self.kind, self.fixed_period, monodromy, jac_T, self.j)
         rows = [x_end - x]
@@ -211,8 +219,6 @@ def locate_bifurcation(
     if fix is not None and not (isinstance(fix, (int, np.integer)) and 0 <= fix < n):
         raise ValueError(f"fix must be a coordinate index in [0, {n}), got {fix!r}")
     mu_guess, t0, T_guess = float(point.mu), float(point.t0), float(point.period)
-    if period_of is None:
-        period_of = lambda mu, nu: jnp.asarray(T_guess, float)  # noqa: E731
     scale = _state_scale(x_guess)
     atol = _ATOL_PER_RTOL * float(rtol) * scale if atol is None else float(atol)
     pmap = _PeriodMap(scene=scene, end_impacts=0, solver=solver, rtol=float(rtol), atol=atol,
@@ -220,7 +226,7 @@ def locate_bifurcation(
                       adjoint=adjoint)
     if fixed_period:
         j = -1
-        y0 = jnp.asarray(np.append(x_guess, mu_guess))
+        y0 = np.append(x_guess, mu_guess)
     else:
         if fix is None:
             if not is_concrete(nu):
@@ -228,41 +234,46 @@ def locate_bifurcation(
             f0 = scene.vector_field(t0, jnp.asarray(x_guess), args_of(mu_guess, nu))
             fix = int(np.argmax(np.abs(np.asarray(jax.lax.stop_gradient(f0)))))
         j = int(fix)
-        y0 = jnp.asarray(np.concatenate([[T_guess], x_guess, [mu_guess]]))
-    system = _System(pmap, kind, bool(fixed_period), args_of, period_of, t0, j)
-    c = jnp.asarray(x_guess[j] if j >= 0 else 0.0)
-    return _solve(system, y0, jnp.asarray(nu, float), c, float(newton_tol) * max(scale, 1.0),
-                  float(newton_tol), int(max_steps))
+        y0 = np.concatenate([[T_guess], x_guess, [mu_guess]])
+    system = _System(pmap, kind, bool(fixed_period), args_of, period_of, j)
+    params = (jnp.asarray(nu, float), jnp.asarray(x_guess[j] if j >= 0 else 0.0),
+              jnp.asarray(t0), jnp.asarray(T_guess))
+    root_finder = _newton_for(newton_tol, max(scale, 1.0))
+    return _solve(system, root_finder, int(max_steps), jnp.asarray(y0), params)
 
 
-def _solve(system: _System, y0, nu, c, newton_atol, newton_rtol, max_steps):
-    root_finder = optx.Newton(rtol=newton_rtol, atol=newton_atol)
-    solution = optx.root_find(jacobian_in_one_pass(system.residual), root_finder, y0, (nu, c),
+@orbit_kernel
+def _solve(system: _System, root_finder, max_steps: int, y0, params):
+    """Newton on the defining system, then the point's diagnostics (one program per
+    system: the same scene, kind and parameter functions reuse it)."""
+    solution = optx.root_find(jacobian_in_one_pass(system.residual), root_finder, y0, params,
                               max_steps=max_steps, throw=False)
     y = solution.value
     converged = solution.result == optx.RESULTS.successful
     finite = jnp.all(jnp.isfinite(jax.lax.stop_gradient(y)))
     y = jnp.where(finite, y, y0)
+    nu, _, t0, T_fixed = params
     x, T, mu = system.split(y)
     if system.fixed_period:
-        T = system.period_of(mu, nu)
-    return _assess(system, x, T, mu, nu, converged, finite, solution.stats["num_steps"])
+        T = system.period(T_fixed, mu, nu)
+    return _assess(system, x, t0, T, mu, nu, converged, finite, solution.stats["num_steps"])
 
 
-def _assess(system: _System, x, T, mu, nu, converged, finite, num_steps):
+def _assess(system: _System, x, t0, T, mu, nu, converged, finite, num_steps):
     """The point's diagnostics, with derivatives where they have them."""
     args = system.args_of(mu, nu)
     zeros = jax.tree.map(jnp.zeros_like, args)
-    x_end, monodromy, jac_T, _, ok, _ = period_map_jacobian(
-        diagnostics_map(system.pmap, system.pmap.adjoint), x, system.t0, T, args, zeros)
+    x_end, monodromy, jac_T, _, ok, sol = period_map_jacobian(
+        diagnostics_map(system.pmap, system.pmap.adjoint), x, t0, T, args, zeros)
     tau = test_function(system.kind, system.fixed_period, monodromy, jac_T, system.j)
     residual = jnp.max(jnp.abs(jax.lax.stop_gradient(x_end - x)))
     S = OrbitStatus
     status = jnp.select([~finite, ~ok, ~converged], [S.DIVERGED, S.SIMULATION_FAILED,
                                                      S.NO_CONVERGENCE], S.SUCCESS)
     return BifurcationPoint(
-        kind=system.kind, mu=mu, nu=nu, x0=x, t0=jnp.asarray(system.t0, float), period=T,
+        kind=system.kind, mu=mu, nu=nu, x0=x, t0=t0, period=T,
         multipliers=eigvals_sorted(monodromy), test_value=tau,
         residual=without_derivative(residual, (x, mu, nu)),
+        num_impacts=jnp.asarray(sol.num_impacts, jnp.int32),
         status=status.astype(jnp.int32), num_steps=jnp.asarray(num_steps),
     )

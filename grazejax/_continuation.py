@@ -26,7 +26,6 @@ unstable dashed, coloured by impacts per period, grazing points marked) and save
 from __future__ import annotations
 
 import dataclasses
-import enum
 import math
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -37,6 +36,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._bifurcation import locate_bifurcation
 from ._orbit_common import (
     SolverSettings,
     _a5,
@@ -56,40 +56,11 @@ from ._orbit_common import (
 )
 from ._periodic import Orbit, OrbitStatus, find_periodic_orbit, orbit_contacts
 from ._scene import Scene
+from ._status import ContinuationStatus
 
 # --------------------------------------------------------------------------------------
 # Results
 # --------------------------------------------------------------------------------------
-
-
-class ContinuationStatus(enum.IntEnum):
-    """Why a continuation stopped (`Branch.status`)."""
-
-    REACHED_STOP = 0
-    """μ reached `mu_stop`."""
-    MAX_POINTS = 1
-    """`max_points` points were computed."""
-    STEP_TOO_SMALL = 2
-    """The corrector kept failing down to `ds_min`, away from any grazing contact."""
-    BRANCH_ENDS = 3
-    """The family ends at a grazing point and no other family continues from there."""
-    START_FAILED = 4
-    """The starting orbit could not be (re)solved at `mu_start`."""
-    LEFT_RANGE = 5
-    """ν left `nu_range` ([`grazejax.continue_grazing`][])."""
-
-    @property
-    def message(self) -> str:
-        return {
-            ContinuationStatus.REACHED_STOP: "reached mu_stop",
-            ContinuationStatus.MAX_POINTS: "stopped after max_points points",
-            ContinuationStatus.STEP_TOO_SMALL: "the corrector failed down to ds_min "
-            "(a fold that pseudo-arclength could not pass, or a non-smooth point)",
-            ContinuationStatus.BRANCH_ENDS: "the family ends at a grazing point: no periodic "
-            "orbit continues from there on either side",
-            ContinuationStatus.START_FAILED: "the starting orbit could not be solved at mu_start",
-            ContinuationStatus.LEFT_RANGE: "nu left nu_range",
-        }[self]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -123,17 +94,27 @@ class GrazingPoint:
 class SpecialPoint:
     r"""A bifurcation of a smooth family found by [`grazejax.continue_orbit`][].
 
-    - `kind`: `"period-doubling"` (a real multiplier through −1: test function
-      Π(1 + ρ_i), located by a secant/regula-falsi search in μ with a corrector at fixed μ
-      per step), `"fold"` (μ turns back along the arclength: the vertex of the parabola
-      through the three points around it) or `"neimark-sacker"` (a complex pair through the
-      unit circle: test function Π_{i<j}(ρ_i ρ_j − 1) changes sign with a complex pair of
-      modulus near 1; linear interpolation between the two points around it).
+    Each is detected between two points of the branch by its test function and then
+    solved by its defining system ([`grazejax.locate_bifurcation`][]: the orbit, μ and the
+    test function together, by Newton's method, to the corrector's tolerance):
+
+    - `kind`: `"period-doubling"` (a real multiplier through −1: Π(1 + ρ_i) changes sign),
+      `"fold"` (μ turns back along the arclength: a second multiplier 1) or
+      `"neimark-sacker"` (a complex pair through the unit circle: Π_{i<j}(ρ_i ρ_j − 1)
+      changes sign with a complex pair of modulus near 1).
     - `mu`: where; `x0`, `t0`, `period`: the orbit there; `multipliers` (modulus
       descending); `num_impacts`.
+    - `solved`: True where the defining system converged on the branch's family (within
+      the points around the detection); False: the detection's estimate (a secant search
+      for period doubling, the vertex of a parabola through three points for a fold,
+      linear interpolation for Neimark–Sacker), kept because Newton failed there.
+    - `fixed_period`: the family's orbits have a fixed (forced) period.
     - `eigenvector`: for period doubling, the real eigenvector of the multiplier −1
       (the direction of the period-2 orbits: [`grazejax.period_doubled_orbit`][]).
     - `label`: a short label for diagrams (`"PD"`, `"LP"`, `"NS"`).
+
+    A `SpecialPoint` is the start `point` of [`grazejax.locate_bifurcation`][] and
+    [`grazejax.continue_bifurcation`][].
     """
 
     kind: str
@@ -144,6 +125,8 @@ class SpecialPoint:
     multipliers: np.ndarray
     num_impacts: int
     eigenvector: np.ndarray | None = None
+    solved: bool = False
+    fixed_period: bool = True
 
     @property
     def label(self) -> str:
@@ -210,6 +193,7 @@ class Branch(eqx.Module):
             "special_points": [
                 {"kind": p.kind, "label": p.label, "mu": p.mu, "period": p.period,
                  "x0": np.asarray(p.x0).tolist(), "num_impacts": p.num_impacts,
+                 "solved": p.solved,
                  "multipliers_re": np.asarray(p.multipliers).real.tolist(),
                  "multipliers_im": np.asarray(p.multipliers).imag.tolist()}
                 for p in self.special_points
@@ -501,7 +485,7 @@ def continue_orbit(
                      t0=jnp.asarray(t_s), T_fixed=T_fixed, ts_unit=ts_unit, mu_stop=mu_stop,
                      direction=direction, ds=float(ds), ds_min=float(ds_min),
                      ds_max=float(ds_max), max_points=max_points, locate_tol=locate_tol,
-                     switch_branches=switch_branches)
+                     switch_branches=switch_branches, newton_tol=float(newton_tol))
     if not tracer.begin(x_s, float(orbit.period), mu_start):
         return _empty_branch(n, ContinuationStatus.START_FAILED, settings)
     bar = None
@@ -547,6 +531,8 @@ class _Tracer:
     max_points: int
     locate_tol: float
     switch_branches: bool
+    newton_tol: float = 1e-8
+    max_refine_steps: int = 30
     bar: Any = None
     j: int = -1
     h: float = 0.0
@@ -581,9 +567,34 @@ class _Tracer:
                 self.bar.set_postfix(**postfix)
 
     def _add_special(self, new):
-        self.special.extend(_special_points(
-            self._natural(), self.points[-2] if len(self.points) > 1 else None, self.current,
-            new, self.fixed, self.locate_tol, float(self.t0)))
+        before = self.points[-2] if len(self.points) > 1 else None
+        found = _special_points(self._natural(), before, self.current, new, self.fixed,
+                                self.locate_tol, float(self.t0))
+        mus = [float(np.asarray(p["Y"])[-1]) for p in (before, self.current, new) if p is not None]
+        self.special.extend(self._solved(p, min(mus), max(mus)) for p in found)
+
+    def _solved(self, special: SpecialPoint, lo: float, hi: float) -> SpecialPoint:
+        """`special` solved by its defining system, where Newton converges on this family
+        (the same impact count, μ within [lo, hi] widened by its width); else as detected."""
+        period_of = self.fam.period_of
+        point = locate_bifurcation(
+            self.scene, special, _OneParameter(self.args_of), 0.0, kind=special.kind,
+            fixed_period=self.fixed,
+            period_of=None if period_of is None else _OneParameter(period_of),
+            fix=None if self.fixed else self.j, rtol=self.kw["rtol"], atol=self.kw["atol"],
+            solver=self.kw["solver"], newton_tol=self.newton_tol,
+            max_steps=self.max_refine_steps,
+        )
+        mu, width = float(point.mu), hi - lo
+        on_family = (int(point.status) == OrbitStatus.SUCCESS
+                     and int(point.num_impacts) == special.num_impacts
+                     and lo - width <= mu <= hi + width)
+        if not on_family:
+            return dataclasses.replace(special, fixed_period=self.fixed)
+        return dataclasses.replace(
+            special, mu=mu, x0=np.asarray(point.x0), period=float(point.period),
+            multipliers=np.asarray(point.multipliers), solved=True, fixed_period=self.fixed,
+        )
 
     def _take_other(self, located, other, kind):
         """Record the grazing point and go on along the other family from `other`."""
@@ -761,6 +772,17 @@ class _Tracer:
         self._take_other(located.point, *switched)
         self._tick(2)
         return None
+
+
+class _OneParameter(eqx.Module):
+    """`fn(mu)` as a function of (μ, ν) (ν unused), for the defining systems of
+    `locate_bifurcation`. A Module: the same `fn` gives equal systems, which share their
+    compiled programs."""
+
+    fn: Callable = eqx.field(static=True)
+
+    def __call__(self, mu, nu):
+        return self.fn(mu)
 
 
 # `_Tracer._approach` found nothing: go on with the step-size logic.

@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from typing import Any
+from typing import Any, NamedTuple
 
 import diffrax
 import equinox as eqx
@@ -35,23 +35,23 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._continuation import ContinuationStatus, GrazingPoint
+from ._arclength import CurvePoint, Steps, progress_bar, trace
+from ._continuation import GrazingPoint
 from ._geometry import gap_rates
 from ._orbit_common import (
     SolverSettings,
     _bordered_newton,
     _continuation_settings,
-    _grown_step,
     _newton_for,
     _next_tangent,
     _PeriodMap,
     _sampled,
-    _step_accepted,
     _write_text,
     orbit_kernel,
 )
 from ._periodic import Orbit, OrbitStatus, orbit_contacts
 from ._scene import Scene
+from ._status import ContinuationStatus
 
 
 class GrazingCurve(eqx.Module):
@@ -168,7 +168,16 @@ def _diagnostics(system: _GrazingSystem, Y, t_fixed, T_fixed, ts_unit):
     return curvature, jnp.min(gaps), sol.num_impacts, T
 
 
-def _correct(system, Y_pred, tangent, t_fixed, T_fixed, ts_unit):
+class _Diagnostics(NamedTuple):
+    """What a grazing curve reports of each point besides its unknowns."""
+
+    curvature: float  # d²Φ/dt² at the contact
+    min_gap: float  # the smallest Φ along the orbit (≤ 0: the contact itself is 0)
+    num_impacts: int  # on the other surfaces
+    period: float
+
+
+def _correct(system, Y_pred, tangent, t_fixed, T_fixed, ts_unit) -> CurvePoint | None:
     """Corrector, then the next tangent (null vector of ∂G/∂Y oriented along `tangent`)
     and the point's diagnostics; `None` if the corrector failed."""
     Y, converged, steps = _corrector(system, jnp.asarray(Y_pred), jnp.asarray(tangent), t_fixed,
@@ -182,8 +191,8 @@ def _correct(system, Y_pred, tangent, t_fixed, T_fixed, ts_unit):
     new_tangent = _next_tangent(J, tangent)
     curvature, min_gap, k, T = (np.asarray(v) for v in _diagnostics(system, Y, t_fixed, T_fixed,
                                                                       ts_unit))
-    return dict(Y=Y_np, tangent=new_tangent, steps=int(steps), curvature=float(curvature),
-                min_gap=min(float(min_gap), 0.0), num_impacts=int(k), period=float(T))
+    return CurvePoint(Y_np, new_tangent, int(steps), _Diagnostics(
+        float(curvature), min(float(min_gap), 0.0), int(k), float(T)))
 
 
 # --------------------------------------------------------------------------------------
@@ -228,56 +237,16 @@ def _system_for(scene, surface, args_of, period_of, fixed, newton_tol, scale, ma
 
 
 def _curve(points, surface, status, t_fixed, settings, fixed, n) -> GrazingCurve:
-    Ys = np.stack([p["Y"] for p in points]) if points else np.zeros((0, n + 3))
+    Ys = np.stack([p.Y for p in points]) if points else np.zeros((0, n + 3))
     t0 = Ys[:, 0] if fixed else np.full(len(Ys), t_fixed)
 
-    def col(key, dtype=float):
-        return np.asarray([p[key] for p in points], dtype)
+    def col(name, dtype=float):
+        return np.asarray([getattr(p.data, name) for p in points], dtype)
 
     return GrazingCurve(mu=Ys[:, -2], nu=Ys[:, -1], t0=t0, x0=Ys[:, 1:-2], period=col("period"),
                         curvature=col("curvature"), min_gap=col("min_gap"),
                         num_impacts=col("num_impacts", int), surface=int(surface),
                         status=int(status), settings=settings)
-
-
-def _trace(system, first, mu_stop, nu_range, direction, ds, ds_min, ds_max, max_points,
-           t_fixed, T_fixed, ts_unit, bar):
-    """The pseudo-arclength loop: the points and why it stopped."""
-    points, current, h = [first], first, float(ds)
-    e_mu = np.zeros(first["Y"].shape[0])
-    e_mu[-2] = 1.0
-    while len(points) < max_points:
-        mu_now, nu_now = current["Y"][-2], current["Y"][-1]
-        if (mu_now - mu_stop) * direction >= 0:
-            return points, ContinuationStatus.REACHED_STOP
-        if not nu_range[0] <= nu_now <= nu_range[1]:
-            return points, ContinuationStatus.LEFT_RANGE
-        tangent = current["tangent"]
-        Y_pred = current["Y"] + h * tangent
-        if (Y_pred[-2] - mu_stop) * direction > 0 and tangent[-2] * direction > 0:
-            # Land on mu_stop exactly: the bordered row fixes μ = mu_stop.
-            frac = (mu_stop - mu_now) / (Y_pred[-2] - mu_now)
-            guess = current["Y"] + frac * h * tangent
-            guess[-2] = mu_stop
-            last = _correct(system, guess, e_mu, t_fixed, T_fixed, ts_unit)
-            if last is not None:
-                points.append(dict(last, tangent=direction * last["tangent"]))
-                return points, ContinuationStatus.REACHED_STOP
-        new = _correct(system, Y_pred, tangent, t_fixed, T_fixed, ts_unit)
-        accepted = new is not None and _step_accepted(new["Y"], new["tangent"], Y_pred,
-                                                      tangent, h)
-        if accepted:
-            points.append(new)
-            current = new
-            h = _grown_step(h, new["steps"], ds_max)
-            if bar is not None:
-                bar.update(1)
-                bar.set_postfix(mu=f"{new['Y'][-2]:.5g}", nu=f"{new['Y'][-1]:.5g}", ds=f"{h:.2g}")
-            continue
-        h *= 0.5
-        if h < ds_min:
-            return points, ContinuationStatus.STEP_TOO_SMALL
-    return points, ContinuationStatus.MAX_POINTS
 
 
 def continue_grazing(
@@ -353,9 +322,8 @@ def continue_grazing(
         raise TypeError(f"scene must be a grazejax.Scene, got {type(scene).__name__}")
     if not callable(args_of):
         raise TypeError("args_of must be a function (mu, nu) -> args")
-    ds_min = 1e-3 * ds if ds_min is None else ds_min
-    if not (ds_min > 0 and ds_max >= ds >= ds_min):
-        raise ValueError("need 0 < ds_min <= ds <= ds_max")
+    steps = Steps(float(ds), 1e-3 * float(ds) if ds_min is None else float(ds_min),
+                  float(ds_max), int(max_points))
     if mu_start == mu_stop:
         raise ValueError("mu_start == mu_stop: nothing to continue")
     if not isinstance(point, GrazingPoint | Orbit):
@@ -372,25 +340,21 @@ def continue_grazing(
     ts_unit = jnp.linspace(0.0, 1.0, int(num_samples), endpoint=False)
     direction = 1.0 if mu_stop > mu_start else -1.0
 
+    def correct(Y_pred, tangent, origin=None):
+        return _correct(system, Y_pred, tangent, t_fixed, T_fixed, ts_unit)
+
     # The first point: μ = mu_start exactly (the bordered row fixes μ), ν free.
     Y0 = np.concatenate([[t_c if fixed else float(orbit.period)], x_c, [mu_start, nu_start]])
     e_mu = np.zeros(n + 3)
     e_mu[-2] = 1.0
-    first = _correct(system, Y0, e_mu, t_fixed, T_fixed, ts_unit)
+    first = correct(Y0, e_mu)
     if first is None:
         return _curve([], surface, ContinuationStatus.START_FAILED, t_c, settings, fixed, n)
     # Its tangent comes out with dμ > 0 (oriented along e_μ): turn it towards mu_stop.
-    first = dict(first, tangent=direction * first["tangent"])
-    bar = None
-    if progress:
-        from tqdm.auto import tqdm
-
-        bar = tqdm(total=max_points, desc="grazejax.continue_grazing", unit="pt")
-        bar.update(1)
-    try:
-        points, status = _trace(system, first, mu_stop, nu_range, direction, ds, ds_min, ds_max,
-                                max_points, t_fixed, T_fixed, ts_unit, bar)
-    finally:
-        if bar is not None:
-            bar.close()
+    first = first._replace(tangent=direction * first.tangent)
+    with progress_bar(progress, steps.max_points, "grazejax.continue_grazing",
+                      ("mu", -2), ("nu", -1)) as report:
+        points, status = trace(correct, first, index=-2, stop=mu_stop, direction=direction,
+                               steps=steps, progress=report,
+                               in_range=lambda Y: nu_range[0] <= Y[-1] <= nu_range[1])
     return _curve(points, surface, status, t_c, settings, fixed, n)

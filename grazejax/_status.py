@@ -95,3 +95,33 @@ class ImpactKind(enum.IntEnum):
     @property
     def is_grazing(self) -> bool:
         return self in (ImpactKind.GAMMA, ImpactKind.GAMMA_PRIME)
+
+
+class ContinuationStatus(enum.IntEnum):
+    """Why a continuation stopped (`Branch.status`)."""
+
+    REACHED_STOP = 0
+    """μ reached `mu_stop`."""
+    MAX_POINTS = 1
+    """`max_points` points were computed."""
+    STEP_TOO_SMALL = 2
+    """The corrector kept failing down to `ds_min`, away from any grazing contact."""
+    BRANCH_ENDS = 3
+    """The family ends at a grazing point and no other family continues from there."""
+    START_FAILED = 4
+    """The starting orbit could not be (re)solved at `mu_start`."""
+    LEFT_RANGE = 5
+    """ν left `nu_range` ([`grazejax.continue_grazing`][])."""
+
+    @property
+    def message(self) -> str:
+        return {
+            ContinuationStatus.REACHED_STOP: "reached mu_stop",
+            ContinuationStatus.MAX_POINTS: "stopped after max_points points",
+            ContinuationStatus.STEP_TOO_SMALL: "the corrector failed down to ds_min "
+            "(a fold that pseudo-arclength could not pass, or a non-smooth point)",
+            ContinuationStatus.BRANCH_ENDS: "the family ends at a grazing point: no periodic "
+            "orbit continues from there on either side",
+            ContinuationStatus.START_FAILED: "the starting orbit could not be solved at mu_start",
+            ContinuationStatus.LEFT_RANGE: "nu left nu_range",
+        }[self]

@@ -1,0 +1,123 @@
+r"""Pseudo-arclength continuation of a curve F(Y) = 0, F: ℝ^{k+1} → ℝ^k, for any defining
+system (grazing orbits in `_grazing_curve.py`, bifurcation points in
+`_bifurcation_curve.py`).
+
+The engine knows nothing of orbits: a front end gives it `correct(Y_pred, tangent, origin)`,
+Newton's method on [F(Y); tangent·(Y − Y_pred)] = 0 followed by the new point's tangent and
+diagnostics (`CurvePoint`, or None where it fails), and the engine predicts, accepts,
+adapts the step and stops (a [`grazejax.ContinuationStatus`][]):
+
+- at `stop` on the coordinate `index` of Y, exactly (a last correction whose bordered row
+  fixes that coordinate);
+- where `in_range(Y)` fails (`LEFT_RANGE`), the step falls under `ds_min`
+  (`STEP_TOO_SMALL`) or after `max_points` (`MAX_POINTS`).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+from collections.abc import Callable
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from ._status import ContinuationStatus
+
+
+class CurvePoint(NamedTuple):
+    """One point of a curve: the unknowns `Y`, the unit `tangent` there (oriented along
+    the curve's direction of travel), Newton's `steps`, and the front end's `data`."""
+
+    Y: np.ndarray
+    tangent: np.ndarray
+    steps: int
+    data: Any
+
+
+@dataclasses.dataclass(frozen=True)
+class Steps:
+    """The arclength step: initial `ds`, bounds `ds_min`, `ds_max`; at most `max_points`."""
+
+    ds: float
+    ds_min: float
+    ds_max: float
+    max_points: int
+
+    def __post_init__(self):
+        if not (self.ds_min > 0 and self.ds_max >= self.ds >= self.ds_min):
+            raise ValueError("need 0 < ds_min <= ds <= ds_max")
+
+
+def step_accepted(new: CurvePoint, Y_pred, tangent, h) -> bool:
+    """A corrected point continues the same curve: its tangent turned by less than 60°
+    and it lies within 3h of the prediction (otherwise the corrector jumped elsewhere)."""
+    return (float(np.dot(new.tangent, tangent)) > 0.5
+            and float(np.linalg.norm(np.asarray(new.Y) - Y_pred)) <= 3 * h)
+
+
+def grown_step(h, newton_steps, ds_max):
+    """Grow by 1.5 (up to `ds_max`) after an easy correction (≤ 3 Newton steps)."""
+    return min(1.5 * h, ds_max) if int(newton_steps) <= 3 else h
+
+
+def trace(correct: Callable, first: CurvePoint, *, index: int, stop: float, direction: float,
+          steps: Steps, in_range: Callable = lambda Y: True, progress=None):
+    """Follow the curve from `first` (its tangent pointing the way to go) until the
+    coordinate `index` of Y reaches `stop` (`direction`: the sign of stop − start):
+    `(points, status)`. `progress(point, h)` is called on every accepted point."""
+    points, current, h = [first], first, float(steps.ds)
+    e_stop = np.zeros(np.shape(first.Y))
+    e_stop[index] = 1.0
+    while len(points) < steps.max_points:
+        Y = np.asarray(current.Y)
+        if (Y[index] - stop) * direction >= 0:
+            return points, ContinuationStatus.REACHED_STOP
+        if not in_range(Y):
+            return points, ContinuationStatus.LEFT_RANGE
+        tangent = np.asarray(current.tangent)
+        Y_pred = Y + h * tangent
+        if (Y_pred[index] - stop) * direction > 0 and tangent[index] * direction > 0:
+            # Land on `stop` exactly: the bordered row fixes that coordinate.
+            guess = Y + (stop - Y[index]) / (Y_pred[index] - Y[index]) * h * tangent
+            guess[index] = stop
+            last = correct(guess, e_stop, Y)
+            if last is not None:
+                points.append(last)
+                return points, ContinuationStatus.REACHED_STOP
+        new = correct(Y_pred, tangent, Y)
+        if new is not None and step_accepted(new, Y_pred, tangent, h):
+            points.append(new)
+            current = new
+            h = grown_step(h, new.steps, steps.ds_max)
+            if progress is not None:
+                progress(new, h)
+            continue
+        h *= 0.5
+        if h < steps.ds_min:
+            return points, ContinuationStatus.STEP_TOO_SMALL
+    return points, ContinuationStatus.MAX_POINTS
+
+
+@contextlib.contextmanager
+def progress_bar(enabled: bool, total: int, desc: str, *coordinates):
+    """A tqdm bar of points (the first already computed) for `trace`'s `progress`, showing
+    the `(name, index)` coordinates of each accepted point and the step; None if not
+    `enabled`."""
+    if not enabled:
+        yield None
+        return
+    from tqdm.auto import tqdm
+
+    bar = tqdm(total=total, desc=desc, unit="pt")
+    bar.update(1)
+
+    def report(point: CurvePoint, h):
+        bar.update(1)
+        shown = {name: f"{float(point.Y[index]):.5g}" for name, index in coordinates}
+        bar.set_postfix(**shown, ds=f"{h:.2g}")
+
+    try:
+        yield report
+    finally:
+        bar.close()
