@@ -25,6 +25,7 @@ from ._continuation import period_doubled_orbit as period_doubled_orbit
 from ._continuation import plot_bifurcation_diagram as plot_bifurcation_diagram
 from ._grazing_curve import GrazingCurve as GrazingCurve
 from ._grazing_curve import continue_grazing as continue_grazing
+from ._grazing_curve import locate_grazing as locate_grazing
 from ._linearize import A2Diagnostic as A2Diagnostic
 from ._linearize import ClosedForm as ClosedForm
 from ._linearize import DerivativeStatus as DerivativeStatus

@@ -59,7 +59,8 @@ class BifurcationPoint(eqx.Module):
 
     **Fields:**
 
-    - `kind`: `"period-doubling"`, `"fold"` or `"neimark-sacker"` (static).
+    - `kind`: `"period-doubling"`, `"fold"` or `"neimark-sacker"`, or `"grazing"` from
+      [`grazejax.locate_grazing`][] (static).
     - `mu`, `nu`: the first parameter (solved for) and the second (given).
     - `x0`, `t0`, `period`: the orbit there (`x0` at phase `t0`).
     - `multipliers`: of its monodromy, modulus descending.
@@ -201,7 +202,8 @@ def locate_bifurcation(
     exception inside `jit`.
 
     The orbit starts away from impacts (x0 is not a post-impact state): take `point.t0`
-    between impacts, as [`grazejax.continue_orbit`][]'s points are.
+    between impacts, as [`grazejax.continue_orbit`][]'s points are. A grazing point is
+    solved by [`grazejax.locate_grazing`][].
     """
     kind = getattr(point, "kind", None) if kind is None else kind
     if kind not in KINDS:

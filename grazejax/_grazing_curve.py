@@ -34,8 +34,10 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+import optimistix as optx
 
 from ._arclength import CurvePoint, Steps, progress_bar, trace
+from ._bifurcation import BifurcationPoint
 from ._continuation import GrazingPoint
 from ._geometry import gap_rates
 from ._orbit_common import (
@@ -47,11 +49,15 @@ from ._orbit_common import (
     _PeriodMap,
     _sampled,
     _write_text,
+    jacobian_in_one_pass,
     orbit_kernel,
+    period_map_jacobian,
 )
-from ._periodic import Orbit, OrbitStatus, orbit_contacts
+from ._periodic import Orbit, OrbitStatus, diagnostics_map, eigvals_sorted, orbit_contacts
 from ._scene import Scene
 from ._status import ContinuationStatus
+from ._tangents import without_derivative
+from ._validate import is_concrete
 
 
 class GrazingCurve(eqx.Module):
@@ -358,3 +364,110 @@ def continue_grazing(
                                steps=steps, progress=report,
                                in_range=lambda Y: nu_range[0] <= Y[-1] <= nu_range[1])
     return _curve(points, surface, status, t_c, settings, fixed, n)
+
+
+# --------------------------------------------------------------------------------------
+# locate_grazing: one grazing point, differentiable in ν
+# --------------------------------------------------------------------------------------
+
+
+def locate_grazing(
+    scene: Scene,
+    point: GrazingPoint | Orbit,
+    args_of: Callable[[Any, Any], Any],
+    nu,
+    *,
+    mu: float | None = None,
+    nu_guess: float | None = None,
+    surface: int | None = None,
+    period_of: Callable[[Any, Any], Any] | None = None,
+    rtol: float = 1e-10,
+    atol: float | None = None,
+    solver: diffrax.AbstractSolver | None = None,
+    newton_tol: float = 1e-10,
+    max_steps: int = 30,
+    adjoint=None,
+) -> BifurcationPoint:
+    r"""Solve a grazing orbit by its defining system at ν: the μ at which the orbit
+    touches surface Γ_i tangentially, differentiable in ν.
+
+    The system is [`grazejax.continue_grazing`][]'s with ν given: P(x0) − x0 = 0 (the flow
+    without the grazed surface), Φ_i(t0, x0) = 0, dΦ_i/dt(t0, x0) = 0, in (t0, x0, μ)
+    for forced orbits (period `period_of(mu, nu)`, default the orbit's) or (T, x0, μ) for
+    autonomous ones. Newton's method (`optx.root_find`); the point is a function of ν by
+    the implicit function theorem: `jax.jacfwd` differentiates it (and `jax.grad` with
+    `adjoint=diffrax.DirectAdjoint()`), never Newton's iterations.
+
+    **Arguments:**
+
+    - `point`: a [`grazejax.GrazingPoint`][] or an [`grazejax.Orbit`][] near grazing (its
+      contact with the smallest |virtual depth|, on `surface` if given), as in
+      [`grazejax.continue_grazing`][].
+    - `args_of(mu, nu) -> args`; `nu` (may be traced); `mu`: the guess of μ (default
+      `point.mu`; required for an `Orbit`); `nu_guess`: the ν at which an `Orbit` guess
+      was computed (default `nu`; its contact is found at (`mu`, `nu_guess`), so pass it
+      when `nu` is traced, e.g. under `jax.jacfwd`).
+    - `rtol`, `atol`, `solver`: for [`grazejax.simulate`][]; `newton_tol`, `max_steps`:
+      Newton's relative tolerance and iterations; `adjoint`: `simulate`'s for the runs.
+
+    **Returns:** a [`grazejax.BifurcationPoint`][] of kind `"grazing"`: `mu`, `nu`, the
+    contact's time `t0` and state `x0` (the orbit starts at it), `period`, the multipliers
+    of the flow without the grazed surface, `test_value` = dΦ_i/dt at the contact (≈ 0),
+    `num_impacts` on the other surfaces, `status`.
+    """
+    if not isinstance(point, GrazingPoint | Orbit):
+        raise TypeError("point must be a grazejax.GrazingPoint or a grazejax.Orbit")
+    if mu is None:
+        if not isinstance(point, GrazingPoint):
+            raise ValueError("locate_grazing from an Orbit needs mu, the guess of μ")
+        mu = point.mu
+    nu_guess = nu if nu_guess is None else nu_guess
+    if isinstance(point, Orbit) and not is_concrete(nu_guess):
+        raise ValueError("locate_grazing: with a traced nu (jit, jacfwd, grad), pass nu_guess, "
+                         "the concrete ν of the guess orbit")
+    orbit = point.orbit if isinstance(point, GrazingPoint) else point
+    kw, _, scale = _continuation_settings(orbit, rtol, atol, solver, newton_tol, max_steps)
+    guess_args = args_of(float(mu), nu_guess) if isinstance(point, Orbit) else None
+    surface, t_c, x_c, orbit = _contact_of(scene, point, guess_args, surface, kw)
+    fixed = bool(orbit.fixed_period)
+    system = _system_for(scene, surface, args_of, period_of, fixed, newton_tol, scale,
+                         max_steps, dict(kw, adjoint=adjoint))
+    head = t_c if fixed else float(orbit.period)
+    y0 = jnp.asarray(np.concatenate([[head], x_c, [float(mu)]]))
+    params = (jnp.asarray(nu, float), jnp.asarray(t_c), jnp.asarray(float(orbit.period)))
+    return _solve_grazing(system, y0, params)
+
+
+@orbit_kernel
+def _solve_grazing(system: _GrazingSystem, y0, params) -> BifurcationPoint:
+    """Newton on the grazing system at ν, then the point's diagnostics (with derivatives
+    where they have them)."""
+    nu, t_fixed, T_fixed = params
+
+    def residual(y, params):
+        nu, t_fixed, T_fixed = params
+        return _residual(system, jnp.concatenate([y, nu[None]]), t_fixed, T_fixed)
+
+    solution = optx.root_find(jacobian_in_one_pass(residual), system.root_finder, y0, params,
+                              max_steps=system.max_steps, throw=False)
+    y = solution.value
+    converged = solution.result == optx.RESULTS.successful
+    finite = jnp.all(jnp.isfinite(jax.lax.stop_gradient(y)))
+    y = jnp.where(finite, y, y0)
+    t0, T, x, mu, nu = _unpack(system, jnp.concatenate([y, nu[None]]), t_fixed, T_fixed)
+    args = system.args_of(mu, nu)
+    zeros = jax.tree.map(jnp.zeros_like, args)
+    pmap = diagnostics_map(system.pmap, system.pmap.adjoint)
+    x_end, monodromy, _, _, ok, sol = period_map_jacobian(pmap, x, t0, T, args, zeros)
+    _, rate, _ = gap_rates(system.phi, system.pmap.scene.vector_field, t0, x, args)
+    residual_max = jnp.max(jnp.abs(jax.lax.stop_gradient(x_end - x)))
+    S = OrbitStatus
+    status = jnp.select([~finite, ~ok, ~converged],
+                        [S.DIVERGED, S.SIMULATION_FAILED, S.NO_CONVERGENCE], S.SUCCESS)
+    return BifurcationPoint(
+        kind="grazing", mu=mu, nu=nu, x0=x, t0=t0, period=T,
+        multipliers=eigvals_sorted(monodromy), test_value=rate,
+        residual=without_derivative(residual_max, (x, mu, nu)),
+        num_impacts=jnp.asarray(sol.num_impacts, jnp.int32),
+        status=status.astype(jnp.int32), num_steps=jnp.asarray(solution.stats["num_steps"]),
+    )

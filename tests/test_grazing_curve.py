@@ -2,6 +2,7 @@
 
 import math
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -119,3 +120,58 @@ def test_autonomous_grazing_curve_matches_closed_form():
     np.testing.assert_allclose(curve.x0[:, 0], curve.nu, atol=1e-12)  # on the wall
     np.testing.assert_array_less(np.abs(curve.x0[:, 1]), bound)       # tangentially
     assert np.all(curve.curvature > 0)
+
+
+def _grazing_amplitude(omega, zeta):
+    """σ_graz = D^(−1/2), D = (1 − ω²)² + (2ζω)², and its derivatives in ω and ζ."""
+    D = (1 - omega**2) ** 2 + (2 * zeta * omega) ** 2
+    dD_domega = -4 * omega * (1 - omega**2) + 8 * zeta**2 * omega
+    dD_dzeta = 8 * zeta * omega**2
+    return D**-0.5, -0.5 * D**-1.5 * dD_domega, -0.5 * D**-1.5 * dD_dzeta
+
+
+def test_grazing_closed_form_derivatives_two_ways():
+    h = 1e-6
+    for k, shift in ((1, (h, 0.0)), (2, (0.0, h))):
+        plus = _grazing_amplitude(0.8 + shift[0], ZETA + shift[1])[0]
+        minus = _grazing_amplitude(0.8 - shift[0], ZETA - shift[1])[0]
+        np.testing.assert_allclose(_grazing_amplitude(0.8, ZETA)[k], (plus - minus) / (2 * h),
+                                   rtol=1e-8)
+
+
+@pytest.mark.parametrize("parameter", ["omega", "zeta"])
+def test_located_grazing_amplitude_and_its_derivatives(parameter):
+    """`locate_grazing` solves σ_graz at ν = ω or ζ (μ = σ) and `jax.jacfwd` differentiates
+    it by the implicit function theorem: both against the closed form."""
+    omega, zeta = 0.8, ZETA
+
+    def args_of(sigma, nu):
+        if parameter == "omega":
+            return ex.impact_oscillator_args(zeta=zeta, A=1.0, omega=nu, sigma=sigma, r=0.8)
+        return ex.impact_oscillator_args(zeta=nu, A=1.0, omega=omega, sigma=sigma, r=0.8)
+
+    def period_of(sigma, nu):
+        return 2 * jnp.pi / (nu if parameter == "omega" else omega)
+
+    nu = omega if parameter == "omega" else zeta
+    start = args_of(3.0, nu)
+    orbit = gj.find_periodic_orbit(OSC, np.asarray(ex.linear_response(0.0, start)),
+                                   2 * math.pi / omega, start, fixed_period=True, **TOL)
+
+    def located(n):
+        return gj.locate_grazing(OSC, orbit, args_of, n, mu=3.0, nu_guess=nu,
+                                 period_of=period_of, **TOL)
+
+    sigma, d_omega, d_zeta = _grazing_amplitude(omega, zeta)
+    point = located(nu)
+    assert point.message == "SUCCESS" and point.kind == "grazing"
+    # Newton's tolerance 1e-10 relative, converged quadratically: the fixed point's own
+    # accuracy (rtol 1e-12, see the curve tests) is what is left.
+    assert abs(float(point.mu) - sigma) < 1e-9
+    assert abs(float(point.test_value)) < 1e-9 and int(point.num_impacts) == 0
+    np.testing.assert_allclose(np.asarray(point.x0), [sigma, 0.0], atol=1e-9)
+    derivative = float(jax.jacfwd(lambda n: located(n).mu)(nu))
+    np.testing.assert_allclose(derivative, d_omega if parameter == "omega" else d_zeta,
+                               rtol=1e-8)
+    with pytest.raises(ValueError, match="nu_guess"):
+        jax.jacfwd(lambda n: gj.locate_grazing(OSC, orbit, args_of, n, mu=3.0).mu)(nu)
