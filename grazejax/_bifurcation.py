@@ -248,33 +248,53 @@ def locate_bifurcation(
 def _solve(system: _System, root_finder, max_steps: int, y0, params):
     """Newton on the defining system, then the point's diagnostics (one program per
     system: the same scene, kind and parameter functions reuse it)."""
-    solution = optx.root_find(jacobian_in_one_pass(system.residual), root_finder, y0, params,
-                              max_steps=max_steps, throw=False)
-    y = solution.value
-    converged = solution.result == optx.RESULTS.successful
-    finite = jnp.all(jnp.isfinite(jax.lax.stop_gradient(y)))
-    y = jnp.where(finite, y, y0)
+    y, converged, finite, num_steps = newton(system.residual, root_finder, y0, params,
+                                             max_steps)
     nu, _, t0, T_fixed = params
     x, T, mu = system.split(y)
     if system.fixed_period:
         T = system.period(T_fixed, mu, nu)
-    return _assess(system, x, t0, T, mu, nu, converged, finite, solution.stats["num_steps"])
+    return _assess(system, x, t0, T, mu, nu, converged, finite, num_steps)
+
+
+def newton(residual, root_finder, y0, params, max_steps):
+    """`optx.root_find` of `residual(y, params)` from y0, differentiable in `params` by
+    the implicit function theorem: `(y, converged, finite, num_steps)`, y0 where the
+    iterate is not finite."""
+    solution = optx.root_find(jacobian_in_one_pass(residual), root_finder, y0, params,
+                              max_steps=max_steps, throw=False)
+    y = solution.value
+    converged = solution.result == optx.RESULTS.successful
+    finite = jnp.all(jnp.isfinite(jax.lax.stop_gradient(y)))
+    return jnp.where(finite, y, y0), converged, finite, solution.stats["num_steps"]
 
 
 def _assess(system: _System, x, t0, T, mu, nu, converged, finite, num_steps):
     """The point's diagnostics, with derivatives where they have them."""
-    args = system.args_of(mu, nu)
+
+    def tau(monodromy, jac_T):
+        return test_function(system.kind, system.fixed_period, monodromy, jac_T, system.j)
+
+    return assessed_point(system.kind, system.pmap, system.args_of, x, t0, T, mu, nu, tau,
+                          converged, finite, num_steps)
+
+
+def assessed_point(kind, pmap, args_of, x, t0, T, mu, nu, test_of, converged, finite,
+                   num_steps) -> BifurcationPoint:
+    """The `BifurcationPoint` of a solved defining system: the orbit's monodromy and
+    multipliers (their derivatives where they have them), `test_of(monodromy, ∂P/∂T)`, the
+    residual (no derivative) and the status."""
+    args = args_of(mu, nu)
     zeros = jax.tree.map(jnp.zeros_like, args)
     x_end, monodromy, jac_T, _, ok, sol = period_map_jacobian(
-        diagnostics_map(system.pmap, system.pmap.adjoint), x, t0, T, args, zeros)
-    tau = test_function(system.kind, system.fixed_period, monodromy, jac_T, system.j)
+        diagnostics_map(pmap, pmap.adjoint), x, t0, T, args, zeros)
     residual = jnp.max(jnp.abs(jax.lax.stop_gradient(x_end - x)))
     S = OrbitStatus
     status = jnp.select([~finite, ~ok, ~converged], [S.DIVERGED, S.SIMULATION_FAILED,
                                                      S.NO_CONVERGENCE], S.SUCCESS)
     return BifurcationPoint(
-        kind=system.kind, mu=mu, nu=nu, x0=x, t0=t0, period=T,
-        multipliers=eigvals_sorted(monodromy), test_value=tau,
+        kind=kind, mu=mu, nu=nu, x0=x, t0=t0, period=T,
+        multipliers=eigvals_sorted(monodromy), test_value=test_of(monodromy, jac_T),
         residual=without_derivative(residual, (x, mu, nu)),
         num_impacts=jnp.asarray(sol.num_impacts, jnp.int32),
         status=status.astype(jnp.int32), num_steps=jnp.asarray(num_steps),

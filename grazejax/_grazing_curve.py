@@ -34,10 +34,9 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optimistix as optx
 
 from ._arclength import CurvePoint, Steps, progress_bar, trace
-from ._bifurcation import BifurcationPoint
+from ._bifurcation import BifurcationPoint, assessed_point, newton
 from ._continuation import GrazingPoint
 from ._geometry import gap_rates
 from ._orbit_common import (
@@ -49,14 +48,11 @@ from ._orbit_common import (
     _PeriodMap,
     _sampled,
     _write_text,
-    jacobian_in_one_pass,
     orbit_kernel,
-    period_map_jacobian,
 )
-from ._periodic import Orbit, OrbitStatus, diagnostics_map, eigvals_sorted, orbit_contacts
+from ._periodic import Orbit, OrbitStatus, orbit_contacts
 from ._scene import Scene
 from ._status import ContinuationStatus
-from ._tangents import without_derivative
 from ._validate import is_concrete
 
 
@@ -448,26 +444,13 @@ def _solve_grazing(system: _GrazingSystem, y0, params) -> BifurcationPoint:
         nu, t_fixed, T_fixed = params
         return _residual(system, jnp.concatenate([y, nu[None]]), t_fixed, T_fixed)
 
-    solution = optx.root_find(jacobian_in_one_pass(residual), system.root_finder, y0, params,
-                              max_steps=system.max_steps, throw=False)
-    y = solution.value
-    converged = solution.result == optx.RESULTS.successful
-    finite = jnp.all(jnp.isfinite(jax.lax.stop_gradient(y)))
-    y = jnp.where(finite, y, y0)
+    y, converged, finite, num_steps = newton(residual, system.root_finder, y0, params,
+                                             system.max_steps)
     t0, T, x, mu, nu = _unpack(system, jnp.concatenate([y, nu[None]]), t_fixed, T_fixed)
-    args = system.args_of(mu, nu)
-    zeros = jax.tree.map(jnp.zeros_like, args)
-    pmap = diagnostics_map(system.pmap, system.pmap.adjoint)
-    x_end, monodromy, _, _, ok, sol = period_map_jacobian(pmap, x, t0, T, args, zeros)
-    _, rate, _ = gap_rates(system.phi, system.pmap.scene.vector_field, t0, x, args)
-    residual_max = jnp.max(jnp.abs(jax.lax.stop_gradient(x_end - x)))
-    S = OrbitStatus
-    status = jnp.select([~finite, ~ok, ~converged],
-                        [S.DIVERGED, S.SIMULATION_FAILED, S.NO_CONVERGENCE], S.SUCCESS)
-    return BifurcationPoint(
-        kind="grazing", mu=mu, nu=nu, x0=x, t0=t0, period=T,
-        multipliers=eigvals_sorted(monodromy), test_value=rate,
-        residual=without_derivative(residual_max, (x, mu, nu)),
-        num_impacts=jnp.asarray(sol.num_impacts, jnp.int32),
-        status=status.astype(jnp.int32), num_steps=jnp.asarray(solution.stats["num_steps"]),
-    )
+
+    def rate(monodromy, jac_T):  # dΦ/dt at the contact
+        return gap_rates(system.phi, system.pmap.scene.vector_field, t0, x,
+                         system.args_of(mu, nu))[1]
+
+    return assessed_point("grazing", system.pmap, system.args_of, x, t0, T, mu, nu, rate,
+                          converged, finite, num_steps)
