@@ -423,8 +423,10 @@ def locate_grazing(
                          "the concrete ν of the guess orbit")
     orbit = point.orbit if isinstance(point, GrazingPoint) else point
     kw, _, scale = _continuation_settings(orbit, rtol, atol, solver, newton_tol, max_steps)
-    guess_args = args_of(float(mu), nu_guess) if isinstance(point, Orbit) else None
-    surface, t_c, x_c, orbit = _contact_of(scene, point, guess_args, surface, kw)
+    # (host work on concrete values, also when called inside `jit`: the guess's contact)
+    with jax.ensure_compile_time_eval():
+        guess_args = args_of(float(mu), nu_guess) if isinstance(point, Orbit) else None
+        surface, t_c, x_c, orbit = _contact_of(scene, point, guess_args, surface, kw)
     fixed = bool(orbit.fixed_period)
     system = _system_for(scene, surface, args_of, period_of, fixed, newton_tol, scale,
                          max_steps, dict(kw, adjoint=adjoint))
