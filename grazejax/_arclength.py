@@ -20,6 +20,7 @@ import dataclasses
 from collections.abc import Callable
 from typing import Any, NamedTuple
 
+import jax.numpy as jnp
 import numpy as np
 
 from ._status import ContinuationStatus
@@ -49,11 +50,11 @@ class Steps:
             raise ValueError("need 0 < ds_min <= ds <= ds_max")
 
 
-def step_accepted(new: CurvePoint, Y_pred, tangent, h) -> bool:
+def step_accepted(Y_new, tangent_new, Y_pred, tangent, h) -> bool:
     """A corrected point continues the same curve: its tangent turned by less than 60°
     and it lies within 3h of the prediction (otherwise the corrector jumped elsewhere)."""
-    return (float(np.dot(new.tangent, tangent)) > 0.5
-            and float(np.linalg.norm(np.asarray(new.Y) - Y_pred)) <= 3 * h)
+    return (float(jnp.dot(tangent_new, tangent)) > 0.5
+            and float(jnp.linalg.norm(Y_new - Y_pred)) <= 3 * h)
 
 
 def grown_step(h, newton_steps, ds_max):
@@ -86,7 +87,7 @@ def trace(correct: Callable, first: CurvePoint, *, index: int, stop: float, dire
                 points.append(last)
                 return points, ContinuationStatus.REACHED_STOP
         new = correct(Y_pred, tangent, Y)
-        if new is not None and step_accepted(new, Y_pred, tangent, h):
+        if new is not None and step_accepted(new.Y, new.tangent, Y_pred, tangent, h):
             points.append(new)
             current = new
             h = grown_step(h, new.steps, steps.ds_max)

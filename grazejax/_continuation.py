@@ -36,20 +36,19 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._arclength import grown_step, step_accepted
 from ._bifurcation import locate_bifurcation
 from ._orbit_common import (
     SolverSettings,
     _a5,
     _bordered_newton,
     _continuation_settings,
-    _grown_step,
     _linearize,
     _newton_for,
     _next_tangent,
     _PeriodMap,
     _sampled,
     _state_at,
-    _step_accepted,
     _write_text,
     gap_rates_at,
     orbit_kernel,
@@ -640,7 +639,7 @@ class _Tracer:
         Y_pred = current["Y"] + h * tangent
         new = _correct(self.fam, Y_pred, tangent, self.t0, e_j, c, self.T_fixed, self.ts_unit)
         k_now = int(current["num_impacts"])
-        accepted = bool(new["good"]) and _step_accepted(new["Y"], new["tangent"], Y_pred,
+        accepted = bool(new["good"]) and step_accepted(new["Y"], new["tangent"], Y_pred,
                                                         tangent, h)
         boundary = None
         if accepted and int(new["num_impacts"]) != k_now:
@@ -704,7 +703,7 @@ class _Tracer:
             self._add_special(new)
         self.points.append(_record(new, self.fixed))
         self.current = new
-        self.h = _grown_step(self.h, new["steps"], self.ds_max)
+        self.h = grown_step(self.h, new["steps"], self.ds_max)
         self._tick(mu=f"{float(new['Y'][-1]):.5g}", impacts=int(new["num_impacts"]),
                    ds=f"{self.h:.2g}")
 

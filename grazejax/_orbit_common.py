@@ -312,18 +312,6 @@ def _next_tangent(J, tangent):
     return new_tangent / np.linalg.norm(new_tangent)
 
 
-def _step_accepted(Y_new, tangent_new, Y_pred, tangent, h) -> bool:
-    """A corrected point continues the same curve: its tangent turned by less than 60°
-    and it lies within 3h of the prediction (otherwise the corrector jumped elsewhere)."""
-    return (float(jnp.dot(tangent_new, tangent)) > 0.5
-            and float(jnp.linalg.norm(Y_new - Y_pred)) <= 3 * h)
-
-
-def _grown_step(h, newton_steps, ds_max):
-    """Arclength step control: grow by 1.5 (up to `ds_max`) after an easy correction."""
-    return min(1.5 * h, ds_max) if int(newton_steps) <= 3 else h
-
-
 def _bordered_newton(rows_of, root_finder, max_steps, Y_pred, tangent):
     """Newton (`optx.root_find`) on [rows(Y); tangent·(Y − Y_pred)] = 0: the
     pseudo-arclength corrector. Returns (Y, converged, number of steps)."""
