@@ -47,6 +47,7 @@ from ._orbit_common import (
     _newton_for,
     _PeriodMap,
     _state_scale,
+    eigvals_descending,
     orbit_kernel,
     period_map_jacobian,
 )
@@ -133,11 +134,6 @@ def _curve_point(system: _System, root_finder, max_steps: int, Y_pred, tangent, 
     return Y, converged & ok, steps, monodromy, T, sol.num_impacts
 
 
-def _eigvals(matrix):
-    w = np.linalg.eigvals(np.asarray(matrix))
-    return w[np.argsort(-np.abs(w), kind="stable")].astype(complex)
-
-
 def _corrector(system, root_finder, max_steps, t0, T_fixed):
     """`correct(Y_pred, tangent, origin)` for the engine: the secant from `origin` (the
     previous point) as the new tangent (`tangent` itself at the first point)."""
@@ -161,7 +157,7 @@ def _corrector(system, root_finder, max_steps, t0, T_fixed):
             chord = Y - np.asarray(origin)
             norm = float(np.linalg.norm(chord))
             new_tangent = chord / norm if norm > 0 else np.asarray(tangent, float)
-        data = _Diagnostics(float(t0), float(T), _eigvals(monodromy), int(k))
+        data = _Diagnostics(float(t0), float(T), eigvals_descending(monodromy), int(k))
         return CurvePoint(Y, new_tangent, int(steps), data)
 
     return correct

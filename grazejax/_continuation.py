@@ -50,6 +50,7 @@ from ._orbit_common import (
     _sampled,
     _state_at,
     _write_text,
+    eigvals_descending,
     gap_rates_at,
     orbit_kernel,
 )
@@ -327,7 +328,7 @@ def _correct(fam: _Family, Y_pred, tangent, t0, e_j, c, T_fixed, ts_unit):
         free = [k for k in range(n) if k != j]
         a6 = np.column_stack([dP_dT, (M - np.eye(n))[:, free]])
     new_tangent = _next_tangent(J, tangent)
-    multipliers = _eig_sorted(M)
+    multipliers = eigvals_descending(M)
     # Extremes along the orbit (amplitude), from samples plus the impact states.
     ts = t0 + float(T) * ts_unit
     samples = _sampled(fam.pmap, jnp.asarray(x), t0, t0 + jnp.asarray(T), args, ts)
@@ -350,11 +351,6 @@ def _correct(fam: _Family, Y_pred, tangent, t0, e_j, c, T_fixed, ts_unit):
         x_min=states.min(axis=0), x_max=states.max(axis=0), f_x=f_x, steps=steps, period=float(T),
         impact_speed=speed,
     )
-
-
-def _eig_sorted(matrix):
-    w = np.linalg.eigvals(np.asarray(matrix))
-    return w[np.argsort(-np.abs(w), kind="stable")].astype(complex)
 
 
 # --------------------------------------------------------------------------------------

@@ -312,6 +312,13 @@ def _next_tangent(J, tangent):
     return new_tangent / np.linalg.norm(new_tangent)
 
 
+def eigvals_descending(matrix) -> np.ndarray:
+    """A concrete matrix's eigenvalues by modulus, descending (complex; numpy on the host),
+    for the continuation's per-point diagnostics."""
+    w = np.linalg.eigvals(np.asarray(matrix))
+    return w[np.argsort(-np.abs(w), kind="stable")].astype(complex)
+
+
 def _bordered_newton(rows_of, root_finder, max_steps, Y_pred, tangent):
     """Newton (`optx.root_find`) on [rows(Y); tangent·(Y − Y_pred)] = 0: the
     pseudo-arclength corrector. Returns (Y, converged, number of steps)."""
