@@ -206,42 +206,55 @@ def locate_bifurcation(
     solved by [`grazejax.locate_grazing`][].
     """
     kind = getattr(point, "kind", None) if kind is None else kind
-    if kind not in KINDS:
-        raise ValueError(f"kind must be one of {KINDS}, got {kind!r}")
     if not loop_kinds(adjoint).forward:
         raise ValueError(
             "locate_bifurcation: Newton's method linearises in forward mode, which "
             "adjoint=diffrax.RecursiveCheckpointAdjoint() does not support; pass "
             "adjoint=diffrax.DirectAdjoint() to differentiate with jax.grad"
         )
+    mu_guess, t0, T_guess = float(point.mu), float(point.t0), float(point.period)
+    system, x_guess, scale = defining_system(
+        scene, point, kind, bool(fixed_period), args_of, period_of, fix, mu_guess, nu,
+        dict(solver=solver, rtol=float(rtol), atol=atol, max_impacts=int(max_impacts),
+             max_solver_steps=int(max_solver_steps), adjoint=adjoint))
+    j = system.j
+    head = [] if fixed_period else [T_guess]
+    y0 = np.concatenate([head, x_guess, [mu_guess]])
+    params = (jnp.asarray(nu, float), jnp.asarray(x_guess[j] if j >= 0 else 0.0),
+              jnp.asarray(t0), jnp.asarray(T_guess))
+    root_finder = _newton_for(newton_tol, max(scale, 1.0))
+    return _solve(system, root_finder, int(max_steps), jnp.asarray(y0), params)
+
+
+def defining_system(scene, point, kind, fixed_period: bool, args_of, period_of, fix, mu, nu,
+                    simulate_kw: dict):
+    """The `_System` of `kind` around the guess `point` (its x0 at phase t0) at (μ, ν), the
+    guess's state and its scale: `(system, x_guess, scale)`. Checks `kind`, `point.x0` and
+    `fix`; `simulate_kw["atol"] = None` scales with the guess; a free period's phase index
+    is `fix`, else the largest |f_j| at the guess (ν must then be concrete)."""
+    if kind not in KINDS:
+        raise ValueError(f"kind must be one of {KINDS}, got {kind!r}")
     x_guess = np.asarray(point.x0, dtype=float)
     if x_guess.ndim != 1:
         raise ValueError(f"point.x0 must be a state vector, got shape {x_guess.shape}")
     n = x_guess.shape[0]
     if fix is not None and not (isinstance(fix, (int, np.integer)) and 0 <= fix < n):
         raise ValueError(f"fix must be a coordinate index in [0, {n}), got {fix!r}")
-    mu_guess, t0, T_guess = float(point.mu), float(point.t0), float(point.period)
     scale = _state_scale(x_guess)
-    atol = _ATOL_PER_RTOL * float(rtol) * scale if atol is None else float(atol)
-    pmap = _PeriodMap(scene=scene, end_impacts=0, solver=solver, rtol=float(rtol), atol=atol,
-                      max_impacts=int(max_impacts), max_solver_steps=int(max_solver_steps),
-                      adjoint=adjoint)
+    kw = dict(simulate_kw)
+    if kw["atol"] is None:
+        kw["atol"] = _ATOL_PER_RTOL * kw["rtol"] * scale
+    pmap = _PeriodMap(scene=scene, end_impacts=0, **dict(kw, atol=float(kw["atol"])))
     if fixed_period:
         j = -1
-        y0 = np.append(x_guess, mu_guess)
+    elif fix is None:
+        if not is_concrete(nu):
+            raise ValueError("locate_bifurcation: inside jit/vmap (traced nu) pass fix")
+        f0 = scene.vector_field(float(point.t0), jnp.asarray(x_guess), args_of(mu, nu))
+        j = int(np.argmax(np.abs(np.asarray(jax.lax.stop_gradient(f0)))))
     else:
-        if fix is None:
-            if not is_concrete(nu):
-                raise ValueError("locate_bifurcation: inside jit/vmap (traced nu) pass fix")
-            f0 = scene.vector_field(t0, jnp.asarray(x_guess), args_of(mu_guess, nu))
-            fix = int(np.argmax(np.abs(np.asarray(jax.lax.stop_gradient(f0)))))
         j = int(fix)
-        y0 = np.concatenate([[T_guess], x_guess, [mu_guess]])
-    system = _System(pmap, kind, bool(fixed_period), args_of, period_of, j)
-    params = (jnp.asarray(nu, float), jnp.asarray(x_guess[j] if j >= 0 else 0.0),
-              jnp.asarray(t0), jnp.asarray(T_guess))
-    root_finder = _newton_for(newton_tol, max(scale, 1.0))
-    return _solve(system, root_finder, int(max_steps), jnp.asarray(y0), params)
+    return _System(pmap, kind, fixed_period, args_of, period_of, j), x_guess, scale
 
 
 @orbit_kernel

@@ -40,13 +40,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._arclength import CurvePoint, Steps, progress_bar, trace
-from ._bifurcation import KINDS, _System
+from ._bifurcation import _System, defining_system
 from ._orbit_common import (
-    _ATOL_PER_RTOL,
     _bordered_newton,
     _newton_for,
-    _PeriodMap,
-    _state_scale,
     eigvals_descending,
     orbit_kernel,
     period_map_jacobian,
@@ -302,8 +299,6 @@ def continue_bifurcation(
     ```
     """
     kind = getattr(point, "kind", None) if kind is None else kind
-    if kind not in KINDS:
-        raise ValueError(f"kind must be one of {KINDS}, got {kind!r}")
     if not isinstance(scene, Scene):
         raise TypeError(f"scene must be a grazejax.Scene, got {type(scene).__name__}")
     if not callable(args_of):
@@ -313,17 +308,12 @@ def continue_bifurcation(
     steps = Steps(float(ds), 1e-3 * float(ds) if ds_min is None else float(ds_min),
                   float(ds_max), int(max_points))
     fixed = bool(getattr(point, "fixed_period", True) if fixed_period is None else fixed_period)
-    x_guess = np.asarray(point.x0, float)
-    if x_guess.ndim != 1:
-        raise ValueError(f"point.x0 must be a state vector, got shape {x_guess.shape}")
-    n = x_guess.shape[0]
     t0, T_guess = float(point.t0), float(point.period)
-    scale = _state_scale(x_guess)
-    atol = _ATOL_PER_RTOL * float(rtol) * scale if atol is None else float(atol)
-    pmap = _PeriodMap(scene=scene, end_impacts=0, solver=solver, rtol=float(rtol), atol=atol,
-                      max_impacts=64, max_solver_steps=50_000)
-    j = -1 if fixed else _phase_index(scene, fix, n, t0, x_guess, args_of(mu_start, nu_start))
-    system = _System(pmap, kind, fixed, args_of, period_of, j)
+    system, x_guess, scale = defining_system(
+        scene, point, kind, fixed, args_of, period_of, fix, mu_start, nu_start,
+        dict(solver=solver, rtol=float(rtol), atol=atol, max_impacts=64,
+             max_solver_steps=50_000))
+    n = x_guess.shape[0]
     correct = _corrector(system, _newton_for(newton_tol, max(scale, 1.0)),
                          int(max_newton_steps), t0, T_guess)
     direction = 1.0 if nu_stop > nu_start else -1.0
@@ -344,15 +334,6 @@ def continue_bifurcation(
                                    direction=direction, steps=steps, progress=report,
                                    in_range=lambda Y: mu_range[0] <= Y[-2] <= mu_range[1])
     return _curve(kind, fixed, points, status, n, len(head))
-
-
-def _phase_index(scene, fix, n, t0, x, args) -> int:
-    if fix is not None:
-        if not (isinstance(fix, (int, np.integer)) and 0 <= fix < n):
-            raise ValueError(f"fix must be a coordinate index in [0, {n}), got {fix!r}")
-        return int(fix)
-    f0 = np.asarray(scene.vector_field(t0, jnp.asarray(x), args))
-    return int(np.argmax(np.abs(f0)))
 
 
 def _curve(kind, fixed, points, status, n, head) -> BifurcationCurve:
