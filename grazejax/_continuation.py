@@ -28,7 +28,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import Any, NamedTuple
 
 import diffrax
 import equinox as eqx
@@ -285,6 +285,31 @@ def _criterion(fam: _Family, Y, t0, e_j, c, T_fixed):
     return jnp.where(ok, rows, jnp.nan), (ok, sol)
 
 
+class _BranchPoint(NamedTuple):
+    """One corrected point of a branch, with what the tracer needs of it.
+
+    `Y` is the corrector's unknown ((x, μ) for a fixed period, (T, x, μ) otherwise) and
+    `tangent` the unit tangent there (the predictor's when `good` is False). A point the
+    corrector could not place (`good` False, `num_impacts` −1) carries only those and the
+    Newton step count; the diagnostics after `steps` are None for it.
+    """
+
+    Y: Any
+    tangent: Any
+    good: bool
+    num_impacts: int
+    steps: Any
+    monodromy: Any = None
+    multipliers: Any = None
+    stable: Any = None
+    a6: Any = None  # det of the (A6) matrix: the Jacobian of the Poincaré criterion
+    x_min: Any = None  # extremes of the state along the orbit (amplitude)
+    x_max: Any = None
+    f_x: Any = None  # the vector field at the point's start (the phase condition's normal)
+    period: Any = None
+    impact_speed: float = math.inf  # the smallest normal impact speed (grazing monitor)
+
+
 @orbit_kernel
 def _corrector(fam: _Family, Y_pred, tangent, t0, e_j, c, T_fixed):
     """Newton on [F(Y); tangent·(Y − Y_pred)] = 0 (the only program compiled for continuation)."""
@@ -305,7 +330,7 @@ def _correct(fam: _Family, Y_pred, tangent, t0, e_j, c, T_fixed, ts_unit):
     Y_np = np.asarray(Y)
     n = Y_np.shape[0] - (1 if fam.fixed_period else 2)
     T, x, mu = (np.asarray(v) for v in _unpack(fam, Y, T_fixed))
-    bad = dict(Y=Y, tangent=jnp.asarray(tangent), good=False, num_impacts=-1, steps=steps)
+    bad = _BranchPoint(Y=Y, tangent=jnp.asarray(tangent), good=False, num_impacts=-1, steps=steps)
     if not (bool(converged) and np.all(np.isfinite(Y_np)) and float(T) > 0):
         return bad
     args, args_dot = jax.jvp(fam.args_of, (jnp.asarray(mu),), (jnp.ones(()),))
@@ -344,7 +369,7 @@ def _correct(fam: _Family, Y_pred, tangent, t0, e_j, c, T_fixed, ts_unit):
         _, rate, _ = gap_rates_at(phi, fam.pmap.scene.vector_field, sol.impact_times[m],
                                sol.impact_pre[m], args)
         speed = min(speed, abs(float(rate)))
-    return dict(
+    return _BranchPoint(
         Y=Y, tangent=jnp.asarray(new_tangent), good=bool(np.all(np.isfinite(new_tangent))),
         num_impacts=k, monodromy=M, multipliers=multipliers,
         stable=bool(_a5(jnp.asarray(multipliers), fam.fixed_period)), a6=float(np.linalg.det(a6)),
@@ -547,8 +572,8 @@ class _Tracer:
         return jnp.asarray(np.eye(self.n)[j]), float(x[j]), j
 
     def correct_from(self, point, step, tangent_):
-        e, cc, _ = self.phase_of(np.asarray(_x_of(point["Y"], self.fixed)), point["f_x"], self.j)
-        Y_pred = point["Y"] + step * tangent_
+        e, cc, _ = self.phase_of(np.asarray(_x_of(point.Y, self.fixed)), point.f_x, self.j)
+        Y_pred = point.Y + step * tangent_
         return _correct(self.fam, Y_pred, tangent_, self.t0, e, cc, self.T_fixed, self.ts_unit)
 
     def _natural(self):
@@ -565,7 +590,7 @@ class _Tracer:
         before = self.points[-2] if len(self.points) > 1 else None
         found = _special_points(self._natural(), before, self.current, new, self.fixed,
                                 self.locate_tol, float(self.t0))
-        mus = [float(np.asarray(p["Y"])[-1]) for p in (before, self.current, new) if p is not None]
+        mus = [float(np.asarray(p.Y)[-1]) for p in (before, self.current, new) if p is not None]
         self.special.extend(self._solved(p, min(mus), max(mus)) for p in found)
 
     def _solved(self, special: SpecialPoint, lo: float, hi: float) -> SpecialPoint:
@@ -594,8 +619,8 @@ class _Tracer:
     def _take_other(self, located, other, kind):
         """Record the grazing point and go on along the other family from `other`."""
         self.grazing.append(dataclasses.replace(
-            located, impacts_after=int(other["num_impacts"]), kind=kind))
-        self.points.append(_record(other, self.fixed))
+            located, impacts_after=int(other.num_impacts), kind=kind))
+        self.points.append(_record(other))
         self.current = other
         self.h = self.ds
 
@@ -609,10 +634,10 @@ class _Tracer:
         e_j, c, self.j = self.phase_of(x0, f0)
         e_mu = jnp.zeros(Y.shape[0]).at[-1].set(1.0)
         first = _correct(self.fam, Y, e_mu, self.t0, e_j, c, self.T_fixed, self.ts_unit)
-        if not bool(first["good"]):
+        if not bool(first.good):
             return False
-        first = dict(first, tangent=self.direction * first["tangent"])
-        self.points, self.current, self.h = [_record(first, self.fixed)], first, self.ds
+        first = first._replace(tangent=self.direction * first.tangent)
+        self.points, self.current, self.h = [_record(first)], first, self.ds
         return True
 
     def run(self) -> ContinuationStatus:
@@ -624,21 +649,21 @@ class _Tracer:
 
     def _step(self):
         current, direction, h = self.current, self.direction, self.h
-        mu_now = float(current["Y"][-1])
+        mu_now = float(current.Y[-1])
         if (mu_now - self.mu_stop) * direction >= 0:
             return ContinuationStatus.REACHED_STOP
-        e_j, c, self.j = self.phase_of(np.asarray(_x_of(current["Y"], self.fixed)),
-                                       current["f_x"], self.j)
-        tangent = current["tangent"]
+        e_j, c, self.j = self.phase_of(np.asarray(_x_of(current.Y, self.fixed)),
+                                       current.f_x, self.j)
+        tangent = current.tangent
         if self._land_on_stop(mu_now, tangent, e_j, c):
             return ContinuationStatus.REACHED_STOP
-        Y_pred = current["Y"] + h * tangent
+        Y_pred = current.Y + h * tangent
         new = _correct(self.fam, Y_pred, tangent, self.t0, e_j, c, self.T_fixed, self.ts_unit)
-        k_now = int(current["num_impacts"])
-        accepted = bool(new["good"]) and step_accepted(new["Y"], new["tangent"], Y_pred,
+        k_now = int(current.num_impacts)
+        accepted = bool(new.good) and step_accepted(new.Y, new.tangent, Y_pred,
                                                         tangent, h)
         boundary = None
-        if accepted and int(new["num_impacts"]) != k_now:
+        if accepted and int(new.num_impacts) != k_now:
             accepted, boundary = self._cross_grazing(new, tangent, k_now)
         if accepted:
             self._accept(new)
@@ -667,12 +692,12 @@ class _Tracer:
                 and float(tangent[-1]) * self.direction > 0):
             return False
         frac = (self.mu_stop - mu_now) / (mu_pred - mu_now)
-        guess = (current["Y"] + frac * h * tangent).at[-1].set(self.mu_stop)
+        guess = (current.Y + frac * h * tangent).at[-1].set(self.mu_stop)
         last = _natural(self.fam, guess, self.t0, e_j, c, self.T_fixed, self.ts_unit)
-        if not (bool(last["good"]) and int(last["num_impacts"]) == int(current["num_impacts"])):
+        if not (bool(last.good) and int(last.num_impacts) == int(current.num_impacts)):
             return False
         self._add_special(last)
-        self.points.append(_record(last, self.fixed))
+        self.points.append(_record(last))
         self._tick()
         return True
 
@@ -680,27 +705,27 @@ class _Tracer:
         """The impact count changed: bisect along the arclength for the grazing point.
         Returns (accepted, boundary)."""
         current = self.current
-        scale = 1.0 + float(jnp.max(jnp.abs(current["Y"])))
+        scale = 1.0 + float(jnp.max(jnp.abs(current.Y)))
         graze, inner = _locate(self.correct_from, current, self.h, tangent, k_now,
                                self.locate_tol)
-        gap = float(jnp.max(jnp.abs((inner["Y"] - graze["Y"])[:-1])))
+        gap = float(jnp.max(jnp.abs((inner.Y - graze.Y)[:-1])))
         if inner is not graze and gap <= 1e-2 * scale:
             # Persistence: the family goes on, with the other impact count.
             self.grazing.append(_grazing_point(
                 self.scene, graze, self.args_of, self.fam, self.t0, self.T_fixed, self.fixed,
-                k_now, int(new["num_impacts"]), "persistence", self.kw))
-            self.points.extend([_record(graze, self.fixed), _record(inner, self.fixed)])
+                k_now, int(new.num_impacts), "persistence", self.kw))
+            self.points.extend([_record(graze), _record(inner)])
             return True, None
         # The other count was found far away: the family ends at `graze`.
         return False, graze
 
     def _accept(self, new):
-        if int(new["num_impacts"]) == int(self.current["num_impacts"]):
+        if int(new.num_impacts) == int(self.current.num_impacts):
             self._add_special(new)
-        self.points.append(_record(new, self.fixed))
+        self.points.append(_record(new))
         self.current = new
-        self.h = grown_step(self.h, new["steps"], self.ds_max)
-        self._tick(mu=f"{float(new['Y'][-1]):.5g}", impacts=int(new["num_impacts"]),
+        self.h = grown_step(self.h, new.steps, self.ds_max)
+        self._tick(mu=f"{float(new.Y[-1]):.5g}", impacts=int(new.num_impacts),
                    ds=f"{self.h:.2g}")
 
     def _approach(self, tangent, k_now):
@@ -715,9 +740,9 @@ class _Tracer:
         if found is None:
             return _FALL_THROUGH
         mu_star, Y_star, new_points = found
-        self.points.extend(_record(pt, self.fixed) for pt in new_points)
+        self.points.extend(_record(pt) for pt in new_points)
         last = new_points[-1] if new_points else current
-        end = dict(last, Y=jnp.asarray(Y_star))
+        end = last._replace(Y=jnp.asarray(Y_star))
         located = _grazing_point(self.scene, end, self.args_of, self.fam, self.t0, self.T_fixed,
                                  self.fixed, k_now, None, "end", self.kw).point
         located = dataclasses.replace(located, mu=mu_star)
@@ -725,7 +750,7 @@ class _Tracer:
         if self.switch_branches:
             # Arrival: from the family's last point towards μ* (near a fold the
             # tangent's μ component can point either way).
-            gap_mu = mu_star - float(np.asarray(last["Y"])[-1])
+            gap_mu = mu_star - float(np.asarray(last.Y)[-1])
             arrival = float(np.sign(gap_mu)) if gap_mu != 0 else (
                 1.0 if float(tangent[-1]) >= 0 else -1.0)
             switched = _switch(self.fam, end, self.args_of, self.t0, self.T_fixed, self.fixed,
@@ -745,7 +770,7 @@ class _Tracer:
                                  self.T_fixed, fixed, k_now, None, "end", self.kw)
         if not located.depth_is_small:
             return ContinuationStatus.STEP_TOO_SMALL
-        family = [pt for pt in self.points[-4:] if int(pt["num_impacts"]) == k_now]
+        family = [pt for pt in self.points[-4:] if int(pt.num_impacts) == k_now]
         if boundary is not current:
             family.append(boundary)
         located = _extrapolate_end(self.scene, located, family, self.args_of, self.fam,
@@ -760,7 +785,7 @@ class _Tracer:
                                          self.T_fixed, fixed, arrival, self.ds, self.phase_of,
                                          self.j, self.ts_unit)
         if boundary is not current:
-            self.points.append(_record(boundary, fixed))
+            self.points.append(_record(boundary))
         if switched is None:
             self.grazing.append(located.point)
             return ContinuationStatus.BRANCH_ENDS
@@ -789,8 +814,9 @@ def _x_of(Y, fixed):
     return Y[:-1] if fixed else Y[1:-1]
 
 
-def _record(point, fixed=None) -> dict:
-    return {k: np.asarray(v) for k, v in point.items()}
+def _record(point: _BranchPoint) -> _BranchPoint:
+    """The point with host arrays (what the branch keeps)."""
+    return _BranchPoint(*(None if v is None else np.asarray(v) for v in point))
 
 
 def _empty_branch(n, status, settings=None) -> Branch:
@@ -803,7 +829,7 @@ def _empty_branch(n, status, settings=None) -> Branch:
 
 def _branch(points, grazing, status, n, t0, settings=None, special=()) -> Branch:
     def stack(key):
-        return np.stack([p[key] for p in points])
+        return np.stack([getattr(p, key) for p in points])
 
     Ys = stack("Y")
     fixed = Ys.shape[1] == n + 1
@@ -829,15 +855,15 @@ def _locate(correct_from, point, h, tangent, k_from, tol, failing_is_other=False
     for _ in range(60):
         mid = 0.5 * (lo + hi)
         trial = correct_from(point, mid, tangent)
-        same = bool(trial["good"]) and int(trial["num_impacts"]) == k_from
+        same = bool(trial.good) and int(trial.num_impacts) == k_from
         if same:
             lo, boundary = mid, trial
         else:
             hi = mid
-            if bool(trial["good"]):
+            if bool(trial.good):
                 inside = trial
-        mu_b = float(boundary["Y"][-1])
-        mu_o = float(inside["Y"][-1]) if inside is not None else mu_b + (hi - lo) * tangent_mu
+        mu_b = float(boundary.Y[-1])
+        mu_o = float(inside.Y[-1]) if inside is not None else mu_b + (hi - lo) * tangent_mu
         if abs(mu_o - mu_b) <= tol * max(1.0, abs(mu_b)) or hi - lo <= 1e-15 * h:
             break
     return boundary, inside if inside is not None else boundary
@@ -850,7 +876,7 @@ class _Located:
 
 
 def _grazing_point(scene, point, args_of, fam, t0, T_fixed, fixed, k_before, k_after, kind, kw):
-    Y = np.asarray(point["Y"])
+    Y = np.asarray(point.Y)
     mu = float(Y[-1])
     x = _x_of(Y, fixed)
     T = float(T_fixed) if fixed else float(Y[0])
@@ -885,7 +911,7 @@ def _extrapolate_end(scene, located, recent, args_of, fam, t0, T_fixed, fixed, k
     so the last points of the family (approaching the end monotonically in μ) give μ* by a
     fit of μ in powers of √|d| ∝ v (up to four points).
     """
-    mus = [float(np.asarray(pt["Y"])[-1]) for pt in recent]
+    mus = [float(np.asarray(pt.Y)[-1]) for pt in recent]
     keep = [len(recent) - 1]
     for i in range(len(recent) - 2, -1, -1):
         step_now = mus[keep[-1]] - mus[i]
@@ -927,32 +953,32 @@ def _test_functions(multipliers, fixed):
 
 
 def _special(kind, point, fixed, t0, mu=None, eigenvector=None):
-    Y = np.asarray(point["Y"])
+    Y = np.asarray(point.Y)
     return SpecialPoint(kind=kind, mu=float(Y[-1]) if mu is None else float(mu),
-                        x0=_x_of(Y, fixed), t0=t0, period=float(point["period"]),
-                        multipliers=np.asarray(point["multipliers"]),
-                        num_impacts=int(point["num_impacts"]), eigenvector=eigenvector)
+                        x0=_x_of(Y, fixed), t0=t0, period=float(point.period),
+                        multipliers=np.asarray(point.multipliers),
+                        num_impacts=int(point.num_impacts), eigenvector=eigenvector)
 
 
 def _special_points(natural, before, a, b, fixed, tol, t0, max_solves=16):
     """Special points between consecutive points `a`, `b` of one smooth family."""
     found = []
-    mu_a, mu_b = float(np.asarray(a["Y"])[-1]), float(np.asarray(b["Y"])[-1])
-    pd_a, ns_a = _test_functions(a["multipliers"], fixed)
-    pd_b, ns_b = _test_functions(b["multipliers"], fixed)
+    mu_a, mu_b = float(np.asarray(a.Y)[-1]), float(np.asarray(b.Y)[-1])
+    pd_a, ns_a = _test_functions(a.multipliers, fixed)
+    pd_b, ns_b = _test_functions(b.multipliers, fixed)
     if pd_a * pd_b < 0 and mu_a != mu_b:
         # Regula falsi (Illinois) in μ on Π(1 + ρ), a corrector at fixed μ per step.
         lo, hi, f_lo, f_hi = (a, b, pd_a, pd_b)
         best, side = None, 0
         for _ in range(max_solves):
-            m_lo, m_hi = float(np.asarray(lo["Y"])[-1]), float(np.asarray(hi["Y"])[-1])
+            m_lo, m_hi = float(np.asarray(lo.Y)[-1]), float(np.asarray(hi.Y)[-1])
             w = f_lo / (f_lo - f_hi)
-            guess = (1 - w) * np.asarray(lo["Y"]) + w * np.asarray(hi["Y"])
+            guess = (1 - w) * np.asarray(lo.Y) + w * np.asarray(hi.Y)
             trial = natural(jnp.asarray(guess))
-            if not bool(trial["good"]) or int(trial["num_impacts"]) != int(a["num_impacts"]):
+            if not bool(trial.good) or int(trial.num_impacts) != int(a.num_impacts):
                 break
             best = trial
-            f = _test_functions(trial["multipliers"], fixed)[0]
+            f = _test_functions(trial.multipliers, fixed)[0]
             if abs(m_hi - m_lo) <= tol * max(1.0, abs(m_lo)) or f == 0:
                 break
             if f * f_lo > 0:
@@ -963,21 +989,21 @@ def _special_points(natural, before, a, b, fixed, tol, t0, max_solves=16):
                 hi, f_hi = trial, f
                 f_lo = f_lo / 2 if side == 1 else f_lo
                 side = 1
-            if abs(float(np.asarray(hi["Y"])[-1]) - float(np.asarray(lo["Y"])[-1])) <= tol * max(1.0, abs(m_lo)):
+            if abs(float(np.asarray(hi.Y)[-1]) - float(np.asarray(lo.Y)[-1])) <= tol * max(1.0, abs(m_lo)):
                 break
         if best is not None:
-            w, v = np.linalg.eig(np.asarray(best["monodromy"]))
+            w, v = np.linalg.eig(np.asarray(best.monodromy))
             m = int(np.argmin(np.abs(w + 1)))
             vec = np.real(v[:, m])
             found.append(_special("period-doubling", best, fixed, t0, eigenvector=vec / np.linalg.norm(vec)))
     if ns_a * ns_b < 0:
-        rho = np.asarray(b["multipliers"])
+        rho = np.asarray(b.multipliers)
         complex_pair = np.any((np.abs(rho.imag) > 1e-8) & (np.abs(np.abs(rho) - 1) < 0.5))
         if complex_pair:
             w = ns_a / (ns_a - ns_b)
             found.append(_special("neimark-sacker", b, fixed, t0, mu=(1 - w) * mu_a + w * mu_b))
     if before is not None:
-        mu_0 = float(np.asarray(before["Y"])[-1])
+        mu_0 = float(np.asarray(before.Y)[-1])
         if (mu_a - mu_0) * (mu_b - mu_a) < 0:
             # μ turned back at `a`: the vertex of the parabola through the three points
             # (parametrised by their index: the arclength steps are comparable).
@@ -1022,7 +1048,7 @@ def _impacting_family(fam, located, end, args_of, t0, T_fixed, fixed, arrival, d
     scene = fam.pmap.scene
     surface = scene.surfaces[graze.surface]
     free = dataclasses.replace(fam.pmap, scene=Scene(scene.vector_field, ()), max_impacts=1)
-    Y_end = np.asarray(end["Y"])
+    Y_end = np.asarray(end.Y)
     T0 = float(T_fixed) if fixed else float(Y_end[0])
     mu_star = float(graze.mu)
     scale = 1.0 + float(np.max(np.abs(Y_end[:-1])))
@@ -1068,19 +1094,19 @@ def _impacting_family(fam, located, end, args_of, t0, T_fixed, fixed, arrival, d
             guess = np.concatenate([[] if fixed else [period], x_t, [mu]])
             natural = _natural_at(fam, end, phase_of, j, fixed, t0, T_fixed, ts_unit)
             point = natural(jnp.asarray(guess))
-            if bool(point["good"]) and int(point["num_impacts"]) == 1:
+            if bool(point.good) and int(point.num_impacts) == 1:
                 found.append((abs(float(rate)), point))
         if len(found) == 2 and found[0][0] < found[1][0]:
             point = found[-1][1]
-            if float(point["tangent"][-1]) * side < 0:
-                point = dict(point, tangent=-point["tangent"])
+            if float(point.tangent[-1]) * side < 0:
+                point = point._replace(tangent=-point.tangent)
             return point, kind
     return None
 
 
 def _natural_at(fam, point, phase_of, j, fixed, t0, T_fixed, ts_unit):
     """`Y ↦ ` the corrector at fixed μ = Y[-1], with the phase condition of `point`."""
-    e_j, c, _ = phase_of(np.asarray(_x_of(point["Y"], fixed)), point["f_x"], j)
+    e_j, c, _ = phase_of(np.asarray(_x_of(point.Y, fixed)), point.f_x, j)
 
     def natural(Y_guess):
         e, cc = e_j, c
@@ -1103,14 +1129,14 @@ def _approach_grazing(natural, history, k_from, locate_tol, reach=math.inf, max_
     `natural(Y_guess)` corrects at the fixed μ = Y_guess[-1]. Returns `(mu_star, Y_star,
     points)` (Y_star the fit at v = 0, `points` the new family points in order), or None.
     """
-    pts = [p for p in history if int(p["num_impacts"]) == k_from and math.isfinite(p["impact_speed"])]
+    pts = [p for p in history if int(p.num_impacts) == k_from and math.isfinite(p.impact_speed)]
     pts = pts[-4:]
     if len(pts) < 2:
         return None
     new_points, estimates = [], []
     for _ in range(max_solves):
-        v = np.array([p["impact_speed"] for p in pts[-3:]])
-        Ys = np.stack([np.asarray(p["Y"]) for p in pts[-3:]])
+        v = np.array([p.impact_speed for p in pts[-3:]])
+        Ys = np.stack([np.asarray(p.Y) for p in pts[-3:]])
         if v[-1] >= v[-2]:
             return None  # the impact speed is not going to 0 along these points
         degree = min(len(v) - 1, 2)
@@ -1128,8 +1154,8 @@ def _approach_grazing(natural, history, k_from, locate_tol, reach=math.inf, max_
         trial = None
         for shrink in (0.25, 0.5, 0.75):
             candidate = natural(jnp.asarray(at(shrink * v[-1])))
-            if bool(candidate["good"]) and int(candidate["num_impacts"]) == k_from and \
-                    candidate["impact_speed"] < v[-1]:
+            if bool(candidate.good) and int(candidate.num_impacts) == k_from and \
+                    candidate.impact_speed < v[-1]:
                 trial = candidate
                 break
         if trial is None:
@@ -1153,8 +1179,8 @@ def _switch(fam, end, args_of, t0, T_fixed, fixed, k_from, direction, ds, phase_
 
     First beyond it in the direction of arrival (`direction`: persistence), then on the
     side it came from (a non-smooth fold)."""
-    Y = np.asarray(end["Y"])
-    e_j, c, _ = phase_of(_x_of(Y, fixed), end["f_x"], j)
+    Y = np.asarray(end.Y)
+    e_j, c, _ = phase_of(_x_of(Y, fixed), end.f_x, j)
     scale = 1.0 + float(np.max(np.abs(Y[:-1])))
     for side, kind in ((direction, "persistence"), (-direction, "fold")):
         # A family that bifurcates here comes closer as the distance in μ shrinks (like
@@ -1164,9 +1190,9 @@ def _switch(fam, end, args_of, t0, T_fixed, fixed, k_from, direction, ds, phase_
             guess = Y.copy()
             guess[-1] += side * h
             trial = _natural(fam, jnp.asarray(guess), t0, e_j, c, T_fixed, ts_unit)
-            if bool(trial["good"]) and int(trial["num_impacts"]) != k_from:
-                found.append((float(np.max(np.abs(np.asarray(trial["Y"])[:-1] - Y[:-1]))), trial))
-        if not found or len({int(t["num_impacts"]) for _, t in found}) > 1:
+            if bool(trial.good) and int(trial.num_impacts) != k_from:
+                found.append((float(np.max(np.abs(np.asarray(trial.Y)[:-1] - Y[:-1]))), trial))
+        if not found or len({int(t.num_impacts) for _, t in found}) > 1:
             continue
         near, trial = found[0]
         far = found[-1][0]
@@ -1174,8 +1200,8 @@ def _switch(fam, end, args_of, t0, T_fixed, fixed, k_from, direction, ds, phase_
             continue
         # Continue from the farthest point found, its tangent along the side it lives on.
         trial = found[-1][1]
-        if float(trial["tangent"][-1]) * side < 0:
-            trial = dict(trial, tangent=-trial["tangent"])
+        if float(trial.tangent[-1]) * side < 0:
+            trial = trial._replace(tangent=-trial.tangent)
         return trial, kind
     return None
 
