@@ -1,4 +1,3 @@
-import gc
 import os
 import tempfile
 from pathlib import Path
@@ -6,6 +5,8 @@ from pathlib import Path
 import jax
 import pytest
 from hypothesis import settings
+
+from tests.mappings import release_compiled_programs
 
 jax.config.update("jax_enable_x64", True)
 
@@ -37,28 +38,16 @@ jax.config.update("jax_persistent_cache_min_compile_time_secs",
 # folder above).
 os.environ.setdefault("GRAZEJAX_COMPILATION_CACHE", "off")
 
-# Every program XLA compiles for the CPU keeps its code in memory mappings of its own, and
-# Linux caps a process at vm.max_map_count (65530 by default) of them. The whole suite
-# compiles a few hundred simulators in one process: by test ~200 it passed 60000 mappings
-# and XLA crashed (SIGSEGV/SIGABRT in the compiler). Dropping the compiled programs between
-# test modules once the count is high keeps the suite under the cap.
-_MAPS_HIGH_WATER = 20_000
+# A worker compiles a few hundred programs, each holding memory mappings of its own, and
+# crashes past Linux's cap on them (tests/mappings.py). The compiled programs are dropped
+# after any test that leaves the count high; the fuzz campaigns, which compile tens of
+# thousands of mappings in one test, also drop them between their parts.
 
 
-def _memory_mappings() -> int:
-    try:
-        with open("/proc/self/maps") as maps:
-            return sum(1 for _ in maps)
-    except OSError:  # not Linux: no such cap to watch
-        return 0
-
-
-@pytest.fixture(scope="module", autouse=True)
+@pytest.fixture(autouse=True)
 def _release_compiled_programs():
     yield
-    if _memory_mappings() > _MAPS_HIGH_WATER:
-        jax.clear_caches()
-        gc.collect()
+    release_compiled_programs()
 
 
 def pytest_collection_modifyitems(config, items):

@@ -37,6 +37,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import grazejax as gj
+from tests.mappings import release_compiled_programs
 
 from . import reference as ref
 from .generator import Family, families
@@ -471,6 +472,7 @@ def campaign(pairs, lanes: int, seed: int, tol=BASE_TOL, progress=None):
         records += recs
         if progress:
             progress(name, solver, recs)
+        release_compiled_programs()
     return records
 
 
@@ -617,4 +619,5 @@ def derivative_campaign(pairs, lanes: int, seed: int, tol=BASE_TOL):
             if int(count[k]) != refs[i].num_impacts:
                 err_fwd = err_rev = math.inf
             rows.append((name, solver, int(i), float(err_fwd), float(err_rev), float(tolerance)))
+        release_compiled_programs()
     return rows

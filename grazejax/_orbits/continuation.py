@@ -36,27 +36,31 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._arclength import grown_step, step_accepted
-from ._bifurcation import locate_bifurcation
-from ._orbit_common import (
-    SolverSettings,
-    _a5,
-    _bordered_newton,
-    _continuation_settings,
-    _linearize,
-    _newton_for,
-    _next_tangent,
-    _PeriodMap,
-    _sampled,
-    _state_at,
-    _write_text,
+from .._scene import Scene
+from .._status import ContinuationStatus
+from .arclength import (
+    bordered_newton,
+    continuation_settings,
     eigvals_descending,
-    gap_rates_at,
-    orbit_kernel,
+    grown_step,
+    next_tangent,
+    step_accepted,
+    write_text,
 )
-from ._periodic import Orbit, OrbitStatus, find_periodic_orbit, orbit_contacts
-from ._scene import Scene
-from ._status import ContinuationStatus
+from .bifurcation import locate_bifurcation
+from .contacts import orbit_contacts
+from .period_map import (
+    PeriodMap,
+    SolverSettings,
+    a5_holds,
+    gap_rates_at,
+    linearize,
+    newton_for,
+    orbit_kernel,
+    sampled_states,
+    state_at,
+)
+from .periodic import Orbit, OrbitStatus, find_periodic_orbit
 
 # --------------------------------------------------------------------------------------
 # Results
@@ -248,7 +252,7 @@ class Branch(eqx.Module):
                            self.x0[i], self.x_min[i], self.x_max[i], np.abs(mult[i]),
                            mult[i].real, mult[i].imag])]
                        + [" ".join(labels[i])])
-        return _write_text(out.getvalue(), path)
+        return write_text(out.getvalue(), path)
 
 
 # --------------------------------------------------------------------------------------
@@ -257,11 +261,11 @@ class Branch(eqx.Module):
 
 
 class _Family(eqx.Module):
-    pmap: _PeriodMap = eqx.field(static=True)
+    pmap: PeriodMap = eqx.field(static=True)
     args_of: Callable = eqx.field(static=True)
     period_of: Callable | None = eqx.field(static=True)
     fixed_period: bool = eqx.field(static=True)
-    root_finder: Any  # (its tolerances are arrays: see `_newton_for`)
+    root_finder: Any  # (its tolerances are arrays: see `newton_for`)
     max_steps: int = eqx.field(static=True)
 
 
@@ -313,7 +317,7 @@ class _BranchPoint(NamedTuple):
 @orbit_kernel
 def _corrector(fam: _Family, Y_pred, tangent, t0, e_j, c, T_fixed):
     """Newton on [F(Y); tangent·(Y − Y_pred)] = 0 (the only program compiled for continuation)."""
-    return _bordered_newton(lambda Y: _criterion(fam, Y, t0, e_j, c, T_fixed)[0],
+    return bordered_newton(lambda Y: _criterion(fam, Y, t0, e_j, c, T_fixed)[0],
                             fam.root_finder, fam.max_steps, Y_pred, tangent)
 
 
@@ -334,7 +338,7 @@ def _correct(fam: _Family, Y_pred, tangent, t0, e_j, c, T_fixed, ts_unit):
     if not (bool(converged) and np.all(np.isfinite(Y_np)) and float(T) > 0):
         return bad
     args, args_dot = jax.jvp(fam.args_of, (jnp.asarray(mu),), (jnp.ones(()),))
-    x_end, M, dP_dT, ok, sol, dP_dargs = _linearize(fam.pmap, jnp.asarray(x), t0, jnp.asarray(T),
+    x_end, M, dP_dT, ok, sol, dP_dargs = linearize(fam.pmap, jnp.asarray(x), t0, jnp.asarray(T),
                                                      args, args_dot)
     M, dP_dT = np.asarray(M), np.asarray(dP_dT)
     if not bool(ok) or not np.all(np.isfinite(M)):
@@ -352,11 +356,11 @@ def _correct(fam: _Family, Y_pred, tangent, t0, e_j, c, T_fixed, ts_unit):
         j = int(np.argmax(e))
         free = [k for k in range(n) if k != j]
         a6 = np.column_stack([dP_dT, (M - np.eye(n))[:, free]])
-    new_tangent = _next_tangent(J, tangent)
+    new_tangent = next_tangent(J, tangent)
     multipliers = eigvals_descending(M)
     # Extremes along the orbit (amplitude), from samples plus the impact states.
     ts = t0 + float(T) * ts_unit
-    samples = _sampled(fam.pmap, jnp.asarray(x), t0, t0 + jnp.asarray(T), args, ts)
+    samples = sampled_states(fam.pmap, jnp.asarray(x), t0, t0 + jnp.asarray(T), args, ts)
     k = int(sol.num_impacts)
     states = np.concatenate([np.asarray(samples.xs), np.asarray(sol.impact_pre[:k]),
                              np.asarray(sol.impact_post[:k])], axis=0)
@@ -372,7 +376,7 @@ def _correct(fam: _Family, Y_pred, tangent, t0, e_j, c, T_fixed, ts_unit):
     return _BranchPoint(
         Y=Y, tangent=jnp.asarray(new_tangent), good=bool(np.all(np.isfinite(new_tangent))),
         num_impacts=k, monodromy=M, multipliers=multipliers,
-        stable=bool(_a5(jnp.asarray(multipliers), fam.fixed_period)), a6=float(np.linalg.det(a6)),
+        stable=bool(a5_holds(jnp.asarray(multipliers), fam.fixed_period)), a6=float(np.linalg.det(a6)),
         x_min=states.min(axis=0), x_max=states.max(axis=0), f_x=f_x, steps=steps, period=float(T),
         impact_speed=speed,
     )
@@ -397,8 +401,8 @@ def _rephase(scene, orbit: Orbit, args, kw) -> tuple[float, np.ndarray]:
     t_s = float(events[m] + 0.5 * gaps[m])
     if t_s >= t0 + T:
         t_s -= T
-    pmap = _PeriodMap(scene=scene, end_impacts=0, **kw)
-    return t_s, _state_at(pmap, np.asarray(orbit.x0, float), t0, t_s, args)
+    pmap = PeriodMap(scene=scene, end_impacts=0, **kw)
+    return t_s, state_at(pmap, np.asarray(orbit.x0, float), t0, t_s, args)
 
 
 def continue_orbit(
@@ -480,13 +484,13 @@ def continue_orbit(
     if mu_start == mu_stop:
         raise ValueError("mu_start == mu_stop: nothing to continue")
     fixed = bool(orbit.fixed_period)
-    kw, settings, scale = _continuation_settings(orbit, rtol, atol, solver, newton_tol,
+    kw, settings, scale = continuation_settings(orbit, rtol, atol, solver, newton_tol,
                                                  max_newton_steps)
     atol = kw["atol"]
-    pmap = _PeriodMap(scene=scene, end_impacts=0, **kw)
+    pmap = PeriodMap(scene=scene, end_impacts=0, **kw)
     fam = _Family(
         pmap=pmap, args_of=args_of, period_of=period_of, fixed_period=fixed,
-        root_finder=_newton_for(newton_tol, scale),
+        root_finder=newton_for(newton_tol, scale),
         max_steps=int(max_newton_steps),
     )
     ts_unit = jnp.linspace(0.0, 1.0, int(num_samples), endpoint=False)
@@ -1015,7 +1019,7 @@ def _special_points(natural, before, a, b, fixed, tol, t0, max_solves=16):
 
 
 @orbit_kernel
-def _impact_closure(free: _PeriodMap, surface, fixed: bool, z, time, args):
+def _impact_closure(free: PeriodMap, surface, fixed: bool, z, time, args):
     """Residual and Jacobian of an orbit closed by one impact, as a flight (no impacts
     inside): unknowns z = (s, x⁻) with s the impact time θ (forced: the period is `time`)
     or the period T (autonomous: θ = `time`); equations x(θ + T; θ, J(x⁻)) = x⁻ and
@@ -1240,10 +1244,10 @@ def period_doubled_orbit(scene: Scene, point: SpecialPoint, args, *, epsilon: fl
         last = orbit
         if int(orbit.status) != OrbitStatus.SUCCESS:
             continue
-        pmap = _PeriodMap(scene=scene, end_impacts=0, solver=kwargs.get("solver"),
+        pmap = PeriodMap(scene=scene, end_impacts=0, solver=kwargs.get("solver"),
                           rtol=float(kwargs.get("rtol", 1e-10)),
                           atol=float(orbit.settings.atol), max_impacts=64, max_solver_steps=50_000)
-        half = _state_at(pmap, np.asarray(orbit.x0), float(orbit.t0),
+        half = state_at(pmap, np.asarray(orbit.x0), float(orbit.t0),
                          float(orbit.t0) + float(orbit.period) / 2, args)
         if np.max(np.abs(half - np.asarray(orbit.x0))) > 1e-6 * size:
             return orbit

@@ -40,7 +40,6 @@ import dataclasses
 import enum
 import functools
 import math
-from typing import Any
 
 import diffrax
 import equinox as eqx
@@ -51,34 +50,27 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, Bool, Complex, Float, Int
 
-from ._adjoint import loop_kinds
-from ._compiler import single_run_jit
-from ._flow import short_free_flow
-from ._geometry import FLOOR_ULPS, gap_rates, on_surface
-from ._linearize import saltation_matrix
-from ._orbit_common import (
-    _ATOL_PER_RTOL,
+from .._adjoint import loop_kinds
+from .._geometry import FLOOR_ULPS, on_surface
+from .._scene import Scene
+from .._status import Status
+from .._tangents import with_forward_tangents, without_derivative
+from .._validate import is_concrete
+from .period_map import (
+    ATOL_PER_RTOL,
+    PeriodMap,
     SolverSettings,
-    _a5,
-    _atol_for,
-    _linearize,
-    _newton_for,
-    _newton_tolerances,
-    _PeriodMap,
-    _run,
-    _sampled,
-    _solver_name,
-    _state_at,
-    _state_scale,
-    gap_rates_at,
+    a5_holds,
     jacobian_in_one_pass,
+    linearize,
+    newton_for,
+    newton_tolerances,
     orbit_kernel,
+    orbit_scale,
     period_map_jacobian,
+    run_period_map,
+    solver_name,
 )
-from ._scene import Scene
-from ._status import Status
-from ._tangents import with_forward_tangents, without_derivative
-from ._validate import is_concrete
 
 # --------------------------------------------------------------------------------------
 # Status
@@ -237,7 +229,7 @@ class Orbit(eqx.Module):
         For an autonomous orbit the multiplier closest to 1 is the trivial one and is
         left out; for a forced orbit (`fixed_period=True`) all multipliers count.
         """
-        return _a5(self.multipliers, self.fixed_period) & self.succeeded
+        return a5_holds(self.multipliers, self.fixed_period) & self.succeeded
 
     def summary(self) -> str:
         """A short human-readable account (outside jit, unbatched)."""
@@ -348,7 +340,7 @@ def _free_columns(n, j):
 
 
 @orbit_kernel
-def _newton(pmap: _PeriodMap, fixed_period: bool, root_finder, max_steps: int, y0, t0,
+def _newton(pmap: PeriodMap, fixed_period: bool, root_finder, max_steps: int, y0, t0,
             T_fixed, args, j, c):
     """Newton (`optx.root_find`) on the Poincaré criterion; differentiable in `args`."""
     n = y0.shape[0] - (0 if fixed_period else 1)
@@ -373,9 +365,9 @@ def _newton(pmap: _PeriodMap, fixed_period: bool, root_finder, max_steps: int, y
     return solution.value, solution.result == optx.RESULTS.successful, solution.stats["num_steps"]
 
 
-def _phase_condition(pmap: _PeriodMap, x_guess, t0, T_guess, args, fix, fixed_period):
+def _phase_condition(pmap: PeriodMap, x_guess, t0, T_guess, args, fix, fixed_period):
     """(j, c) of the phase condition x_j = c, and the guess run's linearization."""
-    lin = _linearize(pmap, x_guess, t0, T_guess, args)
+    lin = linearize(pmap, x_guess, t0, T_guess, args)
     j, c, f_guess = _phase_index(pmap, fixed_period, x_guess, t0, args, fix, lin[4].impact_surface)
     return j, c, f_guess, lin
 
@@ -383,7 +375,7 @@ def _phase_condition(pmap: _PeriodMap, x_guess, t0, T_guess, args, fix, fixed_pe
 # The small computations between the compiled period-map programs are kernels too: run
 # op by op, each of their operations would compile a program of its own.
 @orbit_kernel
-def _phase_index(pmap: _PeriodMap, fixed_period: bool, x_guess, t0, args, fix, impact_surface):
+def _phase_index(pmap: PeriodMap, fixed_period: bool, x_guess, t0, args, fix, impact_surface):
     f_guess = pmap.scene.vector_field(t0, x_guess, args)
     if fixed_period:
         return jnp.asarray(-1), jnp.asarray(0.0, x_guess.dtype), f_guess
@@ -401,7 +393,7 @@ def _phase_index(pmap: _PeriodMap, fixed_period: bool, x_guess, t0, args, fix, i
     return j, x_guess[j], f_guess
 
 
-def _refine_period(pmap: _PeriodMap, x_guess, t0, T_guess, args, j, c, lin):
+def _refine_period(pmap: PeriodMap, x_guess, t0, T_guess, args, j, c, lin):
     """Fix the phase before Newton.
 
     A time-T residual is dominated by the phase error f·ΔT, whose curvature (second order
@@ -416,7 +408,7 @@ def _refine_period(pmap: _PeriodMap, x_guess, t0, T_guess, args, j, c, lin):
     T = jnp.asarray(T_guess, x_guess.dtype)
     for i in range(3):
         if i:
-            x_end, _, jac_T, ok, _ = _linearize(pmap, x_guess, t0, T, args)[:5]
+            x_end, _, jac_T, ok, _ = linearize(pmap, x_guess, t0, T, args)[:5]
         T = _period_step(x_end, jac_T, ok, j, c, T)
     return T
 
@@ -445,7 +437,7 @@ def _solution_point(fixed_period: bool, value, y0, T_guess, j, c):
     return _snap(y[1:], j, c), y[0], finite_y
 
 
-def diagnostics_map(pmap: _PeriodMap, adjoint) -> _PeriodMap:
+def diagnostics_map(pmap: PeriodMap, adjoint) -> PeriodMap:
     """The period map for the diagnostics' derivatives: the orbit's adjoint where it reverses
     (`jax.grad` of a multiplier transposes them), else the forward-mode loop."""
     return dataclasses.replace(pmap, adjoint=adjoint if loop_kinds(adjoint).reverse else None)
@@ -567,7 +559,7 @@ _GUESS_SLACK = 1e-9 / (FLOOR_ULPS * float(np.finfo(np.float64).eps))
 def _host_float(value) -> float:
     """A user's root-finder tolerance as a Python float for `SolverSettings`; NaN if traced.
 
-    (Under `jit` the default Newton's tolerances, arrays from `_newton_for`, are tracers
+    (Under `jit` the default Newton's tolerances, arrays from `newton_for`, are tracers
     too: `float()` of them raised, so `find_periodic_orbit` failed inside `jit`/`vmap`;
     their settings now come from `newton_tol` and the scale, known on the host.)
     """
@@ -585,7 +577,7 @@ def _surfaces_containing(scene: Scene, t, x, args):
     return [on_surface(s.phi, t, x, args, _GUESS_SLACK) for s in scene.surfaces]
 
 
-def _detect_start(pmap: _PeriodMap, x0, t0, period, args) -> tuple[bool, int]:
+def _detect_start(pmap: PeriodMap, x0, t0, period, args) -> tuple[bool, int]:
     """From a concrete guess: does the period end at an impact, and how many per period?
 
     x0 starts at an impact when it lies on a surface that the guess trajectory meets
@@ -594,7 +586,7 @@ def _detect_start(pmap: _PeriodMap, x0, t0, period, args) -> tuple[bool, int]:
     scene = pmap.scene
     on = _on_surfaces(scene, t0, x0, args)
     horizon = t0 + 1.5 * abs(period)
-    sol = _run(pmap, jnp.asarray(x0, float), jnp.asarray(t0, float), jnp.asarray(horizon, float), args)
+    sol = run_period_map(pmap, jnp.asarray(x0, float), jnp.asarray(t0, float), jnp.asarray(horizon, float), args)
     k = int(sol.num_impacts)
     times = np.asarray(sol.impact_times[:k])
     surfaces = np.asarray(sol.impact_surface[:k])
@@ -711,10 +703,10 @@ def find_periodic_orbit(
             "adjoint=diffrax.DirectAdjoint() to differentiate the orbit with jax.grad"
         )
     # Absolute tolerances scale with the orbit (a guess that is traced counts as size 1).
-    scale = _state_scale(x_guess) if is_concrete(x_guess) else 1.0
+    scale = orbit_scale(x_guess) if is_concrete(x_guess) else 1.0
     scaled_atol = atol is None
-    atol_used = _ATOL_PER_RTOL * float(rtol) * scale if scaled_atol else float(atol)
-    pmap = _PeriodMap(
+    atol_used = ATOL_PER_RTOL * float(rtol) * scale if scaled_atol else float(atol)
+    pmap = PeriodMap(
         scene=scene, end_impacts=0, solver=solver, rtol=float(rtol), atol=atol_used,
         max_impacts=int(max_impacts), max_solver_steps=int(max_solver_steps),
     )
@@ -738,7 +730,7 @@ def find_periodic_orbit(
     pmap = dataclasses.replace(pmap, end_impacts=int(num_impacts) if start_at_impact else 0)
     user_root_finder = root_finder is not None
     if root_finder is None:
-        root_finder = _newton_for(newton_tol, scale)
+        root_finder = newton_for(newton_tol, scale)
     requested = jnp.asarray(-1 if num_impacts is None else int(num_impacts))
     fixed_period = bool(fixed_period)
     t0 = jnp.asarray(t0, float)
@@ -767,7 +759,7 @@ def find_periodic_orbit(
     )
     x0, T, finite_y = _solution_point(fixed_period, value, y0, T_fixed, j, c)
     x_const, T_const = lax.stop_gradient((x0, T))
-    lin = _linearize(pmap, x_const, t0, T_const, args_const)
+    lin = linearize(pmap, x_const, t0, T_const, args_const)
     out = _assess(pmap, fixed_period, n, j, fix_arg, f_guess, x_guess, x_const, T_const, t0,
                   args_const, converged, finite_y, lin, requested)
     out = _differentiable_diagnostics(diagnostics_map(pmap, adjoint), fixed_period, n, out,
@@ -777,9 +769,9 @@ def find_periodic_orbit(
         newton_rtol, newton_atol = (_host_float(getattr(root_finder, name, math.nan))
                                     for name in ("rtol", "atol"))
     else:
-        newton_rtol, newton_atol = map(float, _newton_tolerances(newton_tol, scale))
+        newton_rtol, newton_atol = map(float, newton_tolerances(newton_tol, scale))
     settings = SolverSettings(
-        solver=_solver_name(solver), rtol=float(rtol), atol=atol_used,
+        solver=solver_name(solver), rtol=float(rtol), atol=atol_used,
         newton_rtol=newton_rtol, newton_atol=newton_atol,
         max_steps=int(max_steps),
         max_solver_steps=int(max_solver_steps), max_impacts=int(max_impacts), state_scale=scale,
@@ -791,650 +783,15 @@ def find_periodic_orbit(
         # The guess's size may be far from the orbit's (a poor guess, or x0 near 0 in a
         # small orbit): solve once more, from the result, with tolerances of its size.
         k = int(orbit.num_impacts)
-        size = _state_scale(orbit.x0, np.asarray(orbit.impact_pre)[:k],
+        size = orbit_scale(orbit.x0, np.asarray(orbit.impact_pre)[:k],
                             np.asarray(orbit.impact_post)[:k])
         usable = int(orbit.status) in (OrbitStatus.SUCCESS, OrbitStatus.LOOSE_ATOL)
         if usable and not (0.1 * scale <= size <= 10 * scale):
             return find_periodic_orbit(
                 scene, orbit.x0, orbit.period, args, t0=t0, fix=int(orbit.fix) if int(orbit.fix) >= 0 else None,
                 fixed_period=fixed_period, num_impacts=int(orbit.num_impacts),
-                start_at_impact=bool(start_at_impact), rtol=rtol, atol=_ATOL_PER_RTOL * float(rtol) * size,
+                start_at_impact=bool(start_at_impact), rtol=rtol, atol=ATOL_PER_RTOL * float(rtol) * size,
                 solver=solver, max_steps=max_steps, newton_tol=newton_tol,
                 max_impacts=max_impacts, max_solver_steps=max_solver_steps, adjoint=adjoint,
             )
     return orbit
-
-
-# --------------------------------------------------------------------------------------
-# Floquet multipliers, stably
-# --------------------------------------------------------------------------------------
-
-
-class Floquet(eqx.Module):
-    r"""Floquet multipliers of an orbit from per-impact factors ([`grazejax.floquet_multipliers`][]).
-
-    **Fields:**
-
-    - `multipliers`: the multipliers (complex, modulus descending), as eigenvalues of the
-      product A_p ⋯ A_1 computed by a periodic-Schur sweep over the factors (each factor's
-      triangular part carries its own scale, so tiny multipliers keep their relative
-      accuracy instead of drowning in round-off of the largest one).
-    - `multipliers_monodromy`: plain eigenvalues of the orbit's single-shooting monodromy.
-    - `factors`: the factors, in time order: for each impact the flight Jacobian Φ_i (at
-      fixed time, up to the impact) and the impact's saltation matrix S_i, then the last
-      flight; shape `(p, n, n)`. Their product is the monodromy.
-    - `saltation_determinants`: det S_i of each impact, from the closed-form saltation
-      matrix S = DJ + (f⁺ − DJ f⁻ − ∂J/∂t)∇Φᵀ/(∂Φ/∂t + ∇Φ·f⁻).
-    - `trace_integral`: ∫ tr ∂f/∂x dt over one period, along the orbit.
-    - `liouville_determinant`: Π det S_i · exp(∫ tr A dt), the determinant identity
-      (Liouville's formula across impacts). For an autonomous orbit the trivial multiplier
-      is 1, so the product of the others equals it.
-    - `determinant_monodromy`, `determinant_product`: det U and Π det A_i.
-    - `determinant_error`: |det U − Liouville| / |Liouville|.
-    - `stable`: (A5) on `multipliers`.
-    """
-
-    multipliers: Complex[Array, " n"]
-    multipliers_monodromy: Complex[Array, " n"]
-    factors: Float[Array, "p n n"]
-    saltation_determinants: Float[Array, " k"]
-    trace_integral: Float[Array, ""]
-    liouville_determinant: Float[Array, ""]
-    determinant_monodromy: Float[Array, ""]
-    determinant_product: Float[Array, ""]
-    determinant_error: Float[Array, ""]
-    stable: Bool[Array, ""]
-
-
-def saltation(scene: Scene, surface_index: int, t, x_pre, args) -> Array:
-    """Closed-form saltation matrix of an impact on surface `surface_index` at (t, x_pre).
-
-    The matrix of [`grazejax.saltation_matrix`][] (one implementation for the package):
-    S = DJ + (f⁺ − DJ f⁻ − ∂J/∂t) ∇Φᵀ / (∂Φ/∂t + ∇Φ·f⁻). It diverges like 1/(∇Φ·f⁻) near a
-    grazing contact; exactly at one it is the (N2) value, the identity.
-    """
-    return saltation_matrix(scene, surface_index, t, x_pre, args).matrix
-
-
-@orbit_kernel
-def _flights_to_impact(pmap_impact: _PeriodMap, starts, t_starts, durations, nudges, args):
-    """Time-fixed Jacobians Φ_i of the flights from each start to its next impact (vmapped).
-
-    From the impact log's tangents: x_pre moves with the impact time θ, so the Jacobian at
-    the fixed time θ is d x_pre/dx − f⁻ (dθ/dx)ᵀ. The saltation matrix is not included.
-    """
-    def one(x, t, d, tau):
-        def pre(y):
-            # Leave the surface along the free flow first (a restart exactly on a surface
-            # with an inward velocity can re-trigger in simulate: see docs/periodic.md).
-            y1 = short_free_flow(pmap_impact.scene.vector_field, t, y, tau, args)
-            sol = pmap_impact.run(y1, t + tau, t + 2 * d, args, 1)
-            out = (sol.impact_pre[0], sol.impact_times[0])
-            return out, out
-
-        (jx, jt), (x_pre, theta) = jax.jacfwd(pre, has_aux=True)(x)
-        f_minus = pmap_impact.scene.vector_field(theta, x_pre, args)
-        return jx - jnp.outer(f_minus, jt)
-
-    return jax.vmap(one)(starts, t_starts, durations, nudges)
-
-
-@single_run_jit
-def _nudge_jacobian(vector_field, t, x, tau, args):
-    """x(t + τ) by the free flow (RK4) and its Jacobian."""
-    return jax.jacfwd(lambda y: short_free_flow(vector_field, t, y, tau, args), has_aux=False)(x)
-
-
-def _flight_factor(pmap_time: _PeriodMap, x, t, duration, args, tau=0.0):
-    """Time-fixed Jacobian of the flight from (t, x) over `duration`, after a free nudge τ."""
-    if float(tau) == 0.0:
-        return _linearize(pmap_time, x, t, duration, args)[1]
-    f = pmap_time.scene.vector_field
-    x1 = short_free_flow(f, t, jnp.asarray(x), tau, args)
-    nudge = _nudge_jacobian(f, t, jnp.asarray(x), tau, args)
-    return _linearize(pmap_time, x1, t + tau, duration - tau, args)[1] @ nudge
-
-
-def _nudge_times(durations, period):
-    """How far to move along the free flow before restarting from a post-impact state."""
-    return np.minimum(1e-3 * np.asarray(durations), 1e-3 * period)
-
-
-@single_run_jit
-def _traces(scene: Scene, ts, xs, args):
-    f = scene.vector_field
-    return jax.vmap(lambda t, x: jnp.trace(jax.jacfwd(lambda y: f(t, y, args))(x)))(ts, xs)
-
-
-def _trace_integral(pmap: _PeriodMap, x0, t0, period, boundaries, args, num_nodes=400):
-    """∫ tr ∂f/∂x dt over one period: Gauss–Legendre panels on each flight.
-
-    The states at the nodes are the orbit's own samples (`saveat`), so the integral is
-    independent of the flow Jacobians it checks. `num_nodes` is fixed (one compiled
-    sampler, shared with `orbit_contacts`); panels of 8 nodes are spread over the flights
-    in proportion to their length.
-    """
-    nodes, weights = np.polynomial.legendre.leggauss(8)
-    edges = np.asarray(boundaries, float)
-    lengths = np.diff(edges)
-    panels_total = num_nodes // 8
-    panels = np.maximum(1, np.floor(panels_total * lengths / lengths.sum()).astype(int))
-    while panels.sum() > panels_total:
-        panels[np.argmax(panels)] -= 1
-    panels[np.argmax(lengths)] += panels_total - panels.sum()
-    ts, ws = [], []
-    for a, b, m in zip(edges[:-1], edges[1:], panels, strict=True):
-        cuts = np.linspace(a, b, m + 1)
-        for lo, hi in zip(cuts[:-1], cuts[1:], strict=True):
-            ts.append(0.5 * (hi - lo) * nodes + 0.5 * (hi + lo))
-            ws.append(0.5 * (hi - lo) * weights)
-    ts, ws = np.concatenate(ts), np.concatenate(ws)
-    sol = _sampled(pmap, jnp.asarray(x0), jnp.asarray(t0), jnp.asarray(t0 + period), args,
-                   jnp.asarray(ts))
-    traces = np.asarray(_traces(pmap.scene, jnp.asarray(ts), sol.xs, args))
-    return float(np.sum(ws * traces)), bool(sol.status == Status.SUCCESS)
-
-
-def product_eigenvalues(factors) -> np.ndarray:
-    """Eigenvalues of A_p ⋯ A_1 without losing the small ones (periodic Schur sweep).
-
-    The eigenvectors of the product, ordered by modulus, give a unitary Q0 that
-    triangularises it (QR of the eigenvector matrix). One sweep A_k Q_{k−1} = Q_k R_k turns
-    the product into Q_p R_p ⋯ R_1; with Q_p = Q0 D (D diagonal, unit modulus) the
-    eigenvalues are D_ii Π_k (R_k)_ii. Each diagonal entry is accurate relative to its own
-    size, whereas an eigenvalue of the formed product is only accurate to eps·‖product‖.
-    Three sweeps refine Q0 (orthogonal iteration). Falls back to the plain eigenvalues if
-    the product is defective or the sweep does not return to Q0.
-    """
-    factors = [np.asarray(a, dtype=np.complex128) for a in factors]
-    n = factors[0].shape[0]
-    product = np.eye(n, dtype=np.complex128)
-    for a in factors:
-        product = a @ product
-    if not np.all(np.isfinite(product)):
-        return np.full(n, np.nan + 0j)
-    w, v = np.linalg.eig(product)
-    order = np.argsort(-np.abs(w), kind="stable")
-    w, v = w[order], v[:, order]
-    q0, r = np.linalg.qr(v)
-    if np.min(np.abs(np.diag(r))) <= 1e-10 * np.max(np.abs(np.diag(r))):
-        return w  # (nearly) defective: no better basis to sweep with
-    lam = w
-    for _ in range(3):
-        q = q0
-        diag = np.ones(n, dtype=np.complex128)
-        for a in factors:
-            q, r = np.linalg.qr(a @ q)
-            diag = diag * np.diag(r)
-        phase = np.diag(q0.conj().T @ q)
-        if np.min(np.abs(phase)) < 0.99:
-            break  # Q_p is not Q0 up to phases: keep the last good estimate
-        lam = phase / np.abs(phase) * diag
-        q0 = q
-    return lam[np.argsort(-np.abs(lam), kind="stable")]
-
-
-def floquet_multipliers(scene: Scene, orbit: Orbit, args=None, *, solver=None,
-                        rtol: float = 1e-10, atol: float | None = None,
-                        max_solver_steps: int = 50_000) -> Floquet:
-    r"""Floquet multipliers of a periodic orbit, computed stably, with the determinant identity.
-
-    The period is cut at its impacts (multiple shooting): the factors are the flight
-    Jacobians Φ_i from just after impact i−1 to impact i (`jax.jacfwd` through
-    [`grazejax.simulate`][]), the closed-form saltation matrices S_i, and the last flight;
-    U = Φ_last S_k Φ_k ⋯ S_1 Φ_1. The multipliers are the eigenvalues of that product by a
-    periodic-Schur sweep (`product_eigenvalues`), which keeps tiny
-    multipliers (near grazing, det S_i ∝ v → 0) that the eigenvalues of the formed
-    monodromy lose to cancellation.
-
-    The determinant identity det U = Π det S_i · exp(∫ tr ∂f/∂x dt) is checked with the
-    closed-form saltation matrices and the trace integrated along the orbit.
-
-    Run outside `jit` (it loops over impacts in Python). Use the same `rtol`, `atol`,
-    `solver` as the orbit solve (`atol=None`: scaled to the orbit's size as there).
-    """
-    atol = _atol_for(orbit, rtol, atol)
-    k = int(orbit.num_impacts)
-    t0 = float(orbit.t0)
-    end = t0 + float(orbit.period)
-    common = dict(solver=solver, rtol=float(rtol), atol=float(atol), max_impacts=64,
-                  max_solver_steps=int(max_solver_steps))
-    times = np.asarray(orbit.impact_times[:k], dtype=float)
-    posts = np.asarray(orbit.impact_post[:k], dtype=float)
-    pres = np.asarray(orbit.impact_pre[:k], dtype=float)
-    surfaces = np.asarray(orbit.impact_surface[:k])
-    x0 = np.asarray(orbit.x0, dtype=float)
-    factors = []
-    salts = []
-    if k:
-        starts = np.concatenate([x0[None], posts[:-1]], axis=0)
-        t_starts = np.concatenate([[t0], times[:-1]])
-        durations = times - t_starts
-        pmap_impact = _PeriodMap(scene=scene, end_impacts=1, **common)
-        # The first flight starts at x0 (no nudge unless x0 is itself post-impact).
-        nudges = _nudge_times(durations, float(orbit.period))
-        if not orbit.start_at_impact:
-            nudges[0] = 0.0
-        flights = np.asarray(_flights_to_impact(
-            pmap_impact, jnp.asarray(starts), jnp.asarray(t_starts), jnp.asarray(durations),
-            jnp.asarray(nudges), args
-        ))
-        salts = [np.asarray(saltation(scene, int(surfaces[i]), times[i], pres[i], args))
-                 for i in range(k)]
-        # Flight and impact as separate factors: near grazing S has entries ~1/v and a
-        # determinant ~v, and keeping them apart is what lets the sweep resolve a tiny
-        # multiplier that the formed product S·Φ loses to cancellation.
-        for i in range(k):
-            factors.extend([flights[i], salts[i]])
-    last = times[-1] if k else t0
-    closes_at_impact = orbit.start_at_impact and k and abs(end - last) <= 1e-9 * max(1.0, abs(end))
-    if not closes_at_impact:
-        x_last = posts[-1] if k else x0
-        pmap_time = _PeriodMap(scene=scene, end_impacts=0, **common)
-        tau = float(_nudge_times([end - last], float(orbit.period))[0]) if k else 0.0
-        factors.append(np.asarray(_flight_factor(
-            pmap_time, jnp.asarray(x_last), jnp.asarray(last), jnp.asarray(end - last), args,
-            jnp.asarray(tau),
-        )))
-    factors = np.stack(factors)
-    multipliers = product_eigenvalues(factors)
-
-    pmap_time = _PeriodMap(scene=scene, end_impacts=0, **common)
-    trace, ok = _trace_integral(pmap_time, x0, t0, float(orbit.period),
-                                np.concatenate([[t0], times[times < end], [end]]) if k else [t0, end],
-                                args)
-    dets = np.array([np.linalg.det(salt) for salt in salts])
-    liouville = float(np.prod(dets) * np.exp(float(trace))) if bool(ok) else math.nan
-    det_u = float(np.linalg.det(np.asarray(orbit.monodromy)))
-    det_product = float(np.prod([np.linalg.det(a) for a in factors]))
-    error = abs(det_u - liouville) / abs(liouville) if liouville else math.inf
-    return Floquet(
-        multipliers=jnp.asarray(multipliers),
-        multipliers_monodromy=jnp.asarray(orbit.multipliers),
-        factors=jnp.asarray(factors),
-        saltation_determinants=jnp.asarray(dets),
-        trace_integral=jnp.asarray(float(trace)),
-        liouville_determinant=jnp.asarray(liouville),
-        determinant_monodromy=jnp.asarray(det_u),
-        determinant_product=jnp.asarray(det_product),
-        determinant_error=jnp.asarray(error),
-        stable=_a5(jnp.asarray(multipliers), orbit.fixed_period),
-    )
-
-
-# --------------------------------------------------------------------------------------
-# Contacts along an orbit: impacts and near-grazing passes
-# --------------------------------------------------------------------------------------
-
-
-class Contacts(eqx.Module):
-    r"""Where an orbit meets or nearly meets its surfaces ([`grazejax.orbit_contacts`][]).
-
-    One row per impact and per local minimum of a gap Φ_i along a flight (inside the
-    closed piece), sorted by time. NumPy arrays.
-
-    **Fields:**
-
-    - `times`, `points`: time and state of the contact (pre-impact state for impacts;
-      the state at the minimum of Φ_i for passes).
-    - `surfaces`: surface index.
-    - `is_impact`: True for impacts, False for passes without an impact.
-    - `depth`: the signed *virtual depth*, a grazing indicator continuous across grazing:
-      for a pass, the minimum of Φ_i (≥ 0: the clearance); for an impact, −v²/(2a), the
-      minimum the flight would reach without the impact (v = dΦ/dt < 0 and a = d²Φ/dt² at
-      the pre-impact state; −inf if a ≤ 0). depth = 0 is a grazing contact (γ).
-    - `speed`, `acceleration`: dΦ/dt and d²Φ/dt² at the contact.
-    """
-
-    times: Any
-    points: Any
-    surfaces: Any
-    is_impact: Any
-    depth: Any
-    speed: Any
-    acceleration: Any
-
-    def grazing(self, tol: float) -> np.ndarray:
-        """Boolean mask of the contacts with |depth| ≤ tol."""
-        return np.abs(np.asarray(self.depth)) <= tol
-
-
-@single_run_jit
-def _gap_table(scene: Scene, ts, xs, args):
-    """Φ_i, dΦ_i/dt, d²Φ_i/dt² and `where_i` at many (t, x), for every surface."""
-    rows = []
-    for i, surface in enumerate(scene.surfaces):
-        g, gd, gdd = jax.vmap(lambda t, x, i=i: gap_rates(scene.surfaces[i].phi, scene.vector_field, t, x, args))(ts, xs)
-        if surface.where is None:
-            inside = jnp.ones_like(g, dtype=bool)
-        else:
-            inside = jax.vmap(lambda t, x, s=surface: jnp.asarray(s.where(t, x, args), bool))(ts, xs)
-        rows.append((g, gd, gdd, inside))
-    return rows
-
-
-def _refine_minimum(pmap, scene, i, x0, t0, t_guess, args, lo, hi):
-    """One Newton step on dΦ/dt = 0 from t_guess, with the exact state there."""
-    t_guess = float(np.clip(t_guess, lo, hi))
-    x = _state_at(pmap, x0, t0, t_guess, args)
-    g, gd, gdd = (float(v) for v in gap_rates_at(scene.surfaces[i].phi, scene.vector_field, jnp.asarray(t_guess), jnp.asarray(x), args))
-    if gdd > 0:
-        dt = float(np.clip(-gd / gdd, lo - t_guess, hi - t_guess))
-        t_min = t_guess + dt
-        depth = g + gd * dt + 0.5 * gdd * dt * dt
-        x_min = _state_at(pmap, x0, t0, t_min, args)
-        return t_min, x_min, depth, gd + gdd * dt, gdd
-    return t_guess, x, g, gd, gdd
-
-
-def orbit_contacts(scene: Scene, orbit: Orbit, args=None, *, num_samples: int = 400,
-                   max_depth: float = 0.05, solver=None, rtol: float = 1e-10,
-                   atol: float | None = None) -> Contacts:
-    r"""The impacts of an orbit and its near-grazing passes, with a grazing indicator.
-
-    Passes are local minima of Φ_i along the flights, found on `num_samples` samples of
-    one period and refined by a Newton step on dΦ/dt = 0 with the exact state; only those
-    inside the closed piece with |min Φ_i| ≤ `max_depth` are kept. See [`grazejax.Contacts`][]
-    for the signed depth (the indicator used to locate grazing bifurcations).
-    `atol=None`: scaled to the orbit's size, as in [`grazejax.find_periodic_orbit`][].
-    """
-    atol = _atol_for(orbit, rtol, atol)
-    pmap = _PeriodMap(scene=scene, end_impacts=0, solver=solver, rtol=float(rtol),
-                      atol=float(atol), max_impacts=64, max_solver_steps=50_000)
-    t0, T = float(orbit.t0), float(orbit.period)
-    x0 = np.asarray(orbit.x0, float)
-    k = int(orbit.num_impacts)
-    rows = []  # (time, point, surface, is_impact, depth, speed, accel)
-    times = np.asarray(orbit.impact_times[:k], float)
-    for m in range(k):
-        i = int(orbit.impact_surface[m])
-        pre = np.asarray(orbit.impact_pre[m], float)
-        g, gd, gdd = (float(v) for v in gap_rates_at(scene.surfaces[i].phi, scene.vector_field, jnp.asarray(times[m]), jnp.asarray(pre), args))
-        depth = -gd * gd / (2 * gdd) if gdd > 0 else -math.inf
-        rows.append((times[m], pre, i, True, depth, gd, gdd))
-    if scene.surfaces:
-        ts = t0 + T * (np.arange(num_samples) + 0.5) / num_samples
-        sol = _sampled(pmap, jnp.asarray(x0), jnp.asarray(t0), jnp.asarray(t0 + T), args, jnp.asarray(ts))
-        xs = np.asarray(sol.xs)
-        table = _gap_table(scene, jnp.asarray(ts), jnp.asarray(xs), args)
-        h = T / num_samples
-        # Samples whose neighbourhood contains an impact see a jump, not a minimum.
-        near_impact = np.zeros(num_samples, bool)
-        for tm in times:
-            near_impact |= np.abs(ts - tm) <= 1.5 * h
-        for i, (g, _, _, inside) in enumerate(table):
-            g = np.asarray(g)
-            for m in range(1, num_samples - 1):
-                if near_impact[m] or not (g[m - 1] > g[m] <= g[m + 1]):
-                    continue
-                # The piece is closed: at a grazing pass on ∂Γ (ex1dof: x2 = 0) the sample
-                # nearest the minimum may fall just outside `where`.
-                if abs(g[m]) > max_depth or not np.any(np.asarray(inside)[m - 1 : m + 2]):
-                    continue
-                # Vertex of the parabola through three samples, then one exact Newton step.
-                denom = g[m - 1] - 2 * g[m] + g[m + 1]
-                shift = 0.5 * (g[m - 1] - g[m + 1]) / denom if denom > 0 else 0.0
-                t_min, x_min, depth, speed, accel = _refine_minimum(
-                    pmap, scene, i, x0, t0, ts[m] + shift * h, args, ts[m - 1], ts[m + 1]
-                )
-                rows.append((t_min, x_min, i, False, depth, speed, accel))
-    rows.sort(key=lambda r: r[0])
-    n = x0.shape[0]
-
-    def col(j, dtype, shape=()):
-        return np.array([r[j] for r in rows], dtype=dtype).reshape((len(rows),) + shape)
-
-    return Contacts(times=col(0, float), points=col(1, float, (n,)), surfaces=col(2, int),
-                    is_impact=col(3, bool), depth=col(4, float), speed=col(5, float),
-                    acceleration=col(6, float))
-
-
-# --------------------------------------------------------------------------------------
-# Branches of the variational system at grazing contacts (A4), (A5)
-# --------------------------------------------------------------------------------------
-
-
-class GrazingBranches(eqx.Module):
-    r"""The one-sided linearizations of a grazing orbit ([`grazejax.grazing_branches`][]).
-
-    With l grazing contacts, a neighbouring solution impacts or not at each of them, and
-    the paper's (A4) splits the variational system into m ≤ 2^l periodic systems. Row b
-    describes branch b. NumPy arrays.
-
-    **Fields:**
-
-    - `contact_times`, `contact_points`, `contact_surfaces`: the l grazing contacts.
-    - `impacts`: `(m, l)` bool: whether branch b impacts at each contact.
-    - `section_jacobian`: `(m, d, d)` the one-sided limit of the Jacobian of the return
-      map to the section Σ through `base_point` (autonomous: d = n − 1, Σ ⟂ f; forced:
-      d = n, the time-T map). NaN where the limit is infinite.
-    - `monodromy`: `(m, n, n)` the branch monodromy at `base_point`, phase-normalised for
-      autonomous orbits (identity along f, `section_jacobian` on Σ; the coupling of Σ into
-      the phase, which diverges like 1/v on impacting branches, is dropped), the limit of
-      the time-T map's Jacobian for forced ones.
-    - `multipliers`: `(m, n)` complex, modulus descending (the trivial 1 included for
-      autonomous orbits).
-    - `finite`: `(m,)` whether the one-sided limit exists (Nordmark's square-root
-      singularity makes it infinite on the impacting side of most grazings).
-    - `realized`: `(m,)` whether neighbours with that impact pattern were found.
-    - `a5`: `(m,)` the (A5) verdict per branch.
-    - `base_time`, `base_point`, `section_basis`: where the Jacobians are taken (a point
-      of the orbit away from all contacts) and the orthonormal basis Q of Σ used.
-    - `depths`: the neighbour depths δ the limits were extrapolated from.
-    """
-
-    contact_times: Any
-    contact_points: Any
-    contact_surfaces: Any
-    impacts: Any
-    section_jacobian: Any
-    monodromy: Any
-    multipliers: Any
-    finite: Any
-    realized: Any
-    a5: Any
-    base_time: Any
-    base_point: Any
-    section_basis: Any
-    depths: Any
-
-
-def _contact_depths(pmap, scene, start, t_start, t_end, contacts, args, window):
-    """Signed depth at each contact for the trajectory from (t_start, start).
-
-    Impact near t_c on the contact's surface: −v²/(2a) from the log; else the refined
-    minimum of Φ near t_c. Returns (depths, impacted, solution).
-    """
-    sol = _run(pmap, jnp.asarray(start), jnp.asarray(t_start), jnp.asarray(t_end), args)
-    k = int(sol.num_impacts)
-    times = np.asarray(sol.impact_times[:k])
-    surfaces = np.asarray(sol.impact_surface[:k])
-    depths, impacted = [], []
-    for (t_c, i), w in zip(contacts, window, strict=True):
-        hits = [m for m in range(k) if surfaces[m] == i and abs(times[m] - t_c) <= w]
-        if hits:
-            m = min(hits, key=lambda m_: abs(times[m_] - t_c))
-            g, gd, gdd = (float(v) for v in gap_rates_at(
-                scene.surfaces[i].phi, scene.vector_field, jnp.asarray(times[m]), sol.impact_pre[m], args))
-            depths.append(-gd * gd / (2 * gdd) if gdd > 0 else -math.inf)
-            impacted.append(True)
-        else:
-            _, _, depth, _, _ = _refine_minimum(pmap, scene, i, start, t_start, t_c, args,
-                                                t_c - w, t_c + w)
-            depths.append(depth)
-            impacted.append(False)
-    return np.array(depths), np.array(impacted, bool), sol
-
-
-def grazing_branches(scene: Scene, orbit: Orbit, args=None, *, contact_tol: float = 1e-6,
-                     depths=None, solver=None, rtol: float = 1e-10,
-                     atol: float | None = None) -> GrazingBranches:
-    r"""Monodromy matrices and multipliers of each branch of a grazing orbit's linearization.
-
-    At a grazing contact the variational system is bivalued (paper eq. beta / betaexi): a
-    neighbour that misses the surface sees no jump (B = O), one that impacts sees the
-    saltation matrix of an impact with a small normal speed v. With l contacts there are
-    up to 2^l branches (assumption (A4)); (A5) asks each to have the multiplier 1 simple
-    and all others inside the unit circle.
-
-    **What is computed.** The saltation matrix diverges like 1/v as v → 0, so it cannot
-    simply be evaluated on the grazing orbit. Instead, for each impact pattern, we take
-    neighbours of the orbit that realize it (each contact's depth set to ±δ through a
-    perturbation of the start inside the section Σ), compute the Jacobian of their return
-    map to Σ with `jax.jacfwd` through [`grazejax.simulate`][], and extrapolate to δ → 0
-    by least squares in (1, √δ, δ) (the impacting side converges like v ∝ √δ). For an
-    autonomous orbit the return map to Σ removes the phase: the 1/v divergence of an
-    impact is along the flow (a time shift of order √δ) and does not survive the
-    projection when the scene's jump law cancels it, as the paper's (A2) requires
-    (ex1dof). When the limit still grows like δ^(−1/2) (Nordmark's square-root
-    singularity, e.g. any forced impact oscillator with Newtonian restitution), the branch
-    is reported with `finite = False` and infinite multipliers: (A5) fails.
-
-    **Arguments:**
-
-    - `scene`, `orbit`, `args`: the orbit (from [`grazejax.find_periodic_orbit`][]).
-    - `contact_tol`: contacts with |virtual depth| ≤ this are grazing
-      (see [`grazejax.orbit_contacts`][]).
-    - `depths`: neighbour depths δ (default 1e-4·4^(−m), m = 0…5, in units of Φ).
-    - `solver`, `rtol`, `atol`: for [`grazejax.simulate`][].
-
-    **Returns:** a [`grazejax.GrazingBranches`][]. An orbit without grazing contacts has a
-    single branch (its own linearization).
-    """
-    atol = _atol_for(orbit, rtol, atol)
-    depths = np.asarray([1e-4 * 4.0 ** (-m) for m in range(6)] if depths is None else depths, float)
-    pmap = _PeriodMap(scene=scene, end_impacts=0, solver=solver, rtol=float(rtol),
-                      atol=float(atol), max_impacts=64, max_solver_steps=50_000)
-    contacts = orbit_contacts(scene, orbit, args, solver=solver, rtol=rtol, atol=atol)
-    graze = contacts.grazing(contact_tol)
-    t0, T = float(orbit.t0), float(orbit.period)
-    x0 = np.asarray(orbit.x0, float)
-    n = x0.shape[0]
-    autonomous = not orbit.fixed_period
-
-    # Base point: the middle of the longest stretch between events (impacts, contacts).
-    events = np.sort(np.concatenate([np.asarray(contacts.times, float), [t0]]))
-    gaps = np.diff(np.concatenate([events, [events[0] + T]]))
-    m = int(np.argmax(gaps))
-    t_s = events[m] + 0.5 * gaps[m]
-    if t_s >= t0 + T:
-        t_s -= T
-    x_s = _state_at(pmap, x0, t0, t_s, args)
-    f_s = np.asarray(scene.vector_field(jnp.asarray(t_s), jnp.asarray(x_s), args), float)
-    if autonomous:
-        normal = f_s / np.linalg.norm(f_s)
-        q, _ = np.linalg.qr(np.column_stack([normal, np.eye(n)]))
-        basis = q[:, 1:n]
-    else:
-        normal = None
-        basis = np.eye(n)
-    d = basis.shape[1]
-
-    c_times = np.asarray(contacts.times, float)[graze]
-    c_times = np.where(c_times < t_s, c_times + T, c_times)  # times on the loop from t_s
-    c_surfaces = np.asarray(contacts.surfaces)[graze]
-    order = np.argsort(c_times)
-    c_times, c_surfaces = c_times[order], c_surfaces[order]
-    c_points = np.asarray(contacts.points, float)[graze][order]
-    num_contacts = len(c_times)
-    all_times = np.sort(np.concatenate([np.asarray(contacts.times, float), [t_s, t_s + T]]))
-    window = [0.25 * np.min(np.diff(np.unique(np.concatenate([all_times, all_times + T]))))] * num_contacts
-    key = list(zip(c_times, c_surfaces.tolist(), strict=True))
-
-    def return_jacobian(start):
-        """Jacobian of the return map to Σ (or of the time-T map) at `start`."""
-        tau = T
-        if autonomous:
-            for _ in range(3):
-                end = np.asarray(_run(pmap, jnp.asarray(start), jnp.asarray(t_s),
-                                      jnp.asarray(t_s + tau), args).x_final)
-                f_end = np.asarray(scene.vector_field(jnp.asarray(t_s + tau), jnp.asarray(end), args))
-                tau -= float(normal @ (end - x_s)) / float(normal @ f_end)
-        M = np.asarray(_linearize(pmap, jnp.asarray(start), jnp.asarray(t_s), jnp.asarray(tau), args)[1])
-        if not autonomous:
-            return M
-        end = np.asarray(_run(pmap, jnp.asarray(start), jnp.asarray(t_s), jnp.asarray(t_s + tau), args).x_final)
-        f_end = np.asarray(scene.vector_field(jnp.asarray(t_s + tau), jnp.asarray(end), args))
-        project = np.eye(n) - np.outer(f_end, normal) / float(normal @ f_end)
-        return basis.T @ project @ M @ basis
-
-    def measure(delta_vec):
-        start = x_s + basis @ delta_vec
-        dep, hit, _ = _contact_depths(pmap, scene, start, t_s, t_s + 1.05 * T, key, args, window)
-        return dep, hit
-
-    if num_contacts == 0:
-        patterns = [()]
-        G = np.zeros((0, d))
-    else:
-        # Depth gradients in Σ, by central differences (depth is continuous across grazing).
-        h = 1e-6 * max(1.0, float(np.max(np.abs(x_s))))
-        G = np.zeros((num_contacts, d))
-        for j in range(d):
-            e = np.zeros(d)
-            e[j] = h
-            G[:, j] = (measure(e)[0] - measure(-e)[0]) / (2 * h)
-        patterns = [tuple(bool(b) for b in bits) for bits in np.ndindex(*(2,) * num_contacts)]
-
-    m_branches = len(patterns)
-    jac = np.full((m_branches, d, d), np.nan)
-    mono = np.full((m_branches, n, n), np.nan)
-    mult = np.full((m_branches, n), np.nan + 0j)
-    finite = np.zeros(m_branches, bool)
-    realized = np.zeros(m_branches, bool)
-    for b, pattern in enumerate(patterns):
-        if num_contacts == 0:
-            samples = [return_jacobian(x_s)]
-            used = np.array([0.0])
-            realized[b] = True
-        else:
-            sign = np.array([-1.0 if hit else 1.0 for hit in pattern])
-            pinv = np.linalg.pinv(G)
-            samples, used = [], []
-            for delta in depths:
-                target = sign * delta
-                dv = pinv @ target
-                ok = False
-                for _ in range(3):  # correct the linear model with the measured depths
-                    dep, hit = measure(dv)
-                    if np.array_equal(hit, np.array(pattern)) and np.all(np.sign(dep) == sign):
-                        ok = True
-                        break
-                    dv = dv + pinv @ (target - np.where(np.isfinite(dep), dep, 0.0))
-                if ok:
-                    samples.append(return_jacobian(x_s + basis @ dv))
-                    used.append(delta)
-            realized[b] = len(samples) >= 3
-        if not realized[b]:
-            continue
-        samples = np.stack(samples)
-        used = np.asarray(used)
-        if num_contacts == 0:
-            limit, grows = samples[0], False
-        else:
-            norms = np.array([np.linalg.norm(s) for s in samples])
-            slope = np.polyfit(np.log(used[-3:]), np.log(norms[-3:]), 1)[0]
-            grows = slope < -0.25
-            design = np.column_stack([np.ones_like(used), np.sqrt(used), used])
-            coef, *_ = np.linalg.lstsq(design, samples.reshape(len(used), -1), rcond=None)
-            limit = coef[0].reshape(d, d)
-        if grows or not np.all(np.isfinite(limit)):
-            mult[b] = np.inf
-            continue
-        finite[b] = True
-        jac[b] = limit
-        if autonomous:
-            mono[b] = np.outer(normal, normal) + basis @ limit @ basis.T
-            rho = np.concatenate([[1.0 + 0j], np.linalg.eigvals(limit)])
-        else:
-            mono[b] = limit
-            rho = np.linalg.eigvals(limit).astype(complex)
-        mult[b] = rho[np.argsort(-np.abs(rho), kind="stable")]
-    a5 = np.asarray(_a5(jnp.asarray(mult), orbit.fixed_period)) & finite
-    return GrazingBranches(
-        contact_times=np.where(c_times >= t0 + T, c_times - T, c_times),
-        contact_points=c_points, contact_surfaces=c_surfaces,
-        impacts=np.array(patterns, bool).reshape(m_branches, num_contacts), section_jacobian=jac,
-        monodromy=mono, multipliers=mult, finite=finite, realized=realized, a5=a5,
-        base_time=t_s, base_point=x_s, section_basis=basis, depths=depths,
-    )

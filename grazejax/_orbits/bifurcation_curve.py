@@ -1,10 +1,10 @@
 r"""Two-parameter curves of bifurcation points: a period-doubling, fold or Neimark–Sacker
 point followed in (μ, ν).
 
-The defining system of `locate_bifurcation` (`_bifurcation._System`: the orbit is periodic
+The defining system of `locate_bifurcation` (`bifurcation.DefiningSystem`: the orbit is periodic
 and the kind's test function vanishes) has one unknown more when ν is free too,
 Y = (x, μ, ν) or (T, x, μ, ν): its solutions form a curve, followed by the pseudo-arclength
-engine (`_arclength.py`) with a secant predictor (the tangent of the last two points:
+engine (`arclength.py`) with a secant predictor (the tangent of the last two points:
 a tangent from the system's Jacobian would need the third derivatives of the flow).
 
 Along the curve the multipliers other than the critical ones are watched; where one of
@@ -39,17 +39,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._arclength import CurvePoint, Steps, progress_bar, trace
-from ._bifurcation import _System, defining_system
-from ._orbit_common import (
-    _bordered_newton,
-    _newton_for,
-    eigvals_descending,
-    orbit_kernel,
-    period_map_jacobian,
-)
-from ._scene import Scene
-from ._status import ContinuationStatus
+from .._scene import Scene
+from .._status import ContinuationStatus
+from .arclength import CurvePoint, Steps, bordered_newton, eigvals_descending, progress_bar, trace
+from .bifurcation import DefiningSystem, defining_system
+from .period_map import newton_for, orbit_kernel, period_map_jacobian
 
 
 class Codim2Point(NamedTuple):
@@ -112,7 +106,7 @@ class _Diagnostics(NamedTuple):
 
 
 @orbit_kernel
-def _curve_point(system: _System, root_finder, max_steps: int, Y_pred, tangent, params):
+def _curve_point(system: DefiningSystem, root_finder, max_steps: int, Y_pred, tangent, params):
     """The bordered Newton corrector on the defining system with ν free, then the
     corrected orbit's monodromy, period, impact count and whether its run succeeded."""
     c, t0, T_fixed = params
@@ -120,7 +114,7 @@ def _curve_point(system: _System, root_finder, max_steps: int, Y_pred, tangent, 
     def rows(Y):
         return system.residual(Y[:-1], (Y[-1], c, t0, T_fixed))
 
-    Y, converged, steps = _bordered_newton(rows, root_finder, max_steps, Y_pred, tangent)
+    Y, converged, steps = bordered_newton(rows, root_finder, max_steps, Y_pred, tangent)
     x, T, mu = system.split(Y[:-1])
     nu = Y[-1]
     if system.fixed_period:
@@ -314,7 +308,7 @@ def continue_bifurcation(
         dict(solver=solver, rtol=float(rtol), atol=atol, max_impacts=64,
              max_solver_steps=50_000))
     n = x_guess.shape[0]
-    correct = _corrector(system, _newton_for(newton_tol, max(scale, 1.0)),
+    correct = _corrector(system, newton_for(newton_tol, max(scale, 1.0)),
                          int(max_newton_steps), t0, T_guess)
     direction = 1.0 if nu_stop > nu_start else -1.0
     head = [] if fixed else [T_guess]

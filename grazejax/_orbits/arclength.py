@@ -1,6 +1,7 @@
 r"""Pseudo-arclength continuation of a curve F(Y) = 0, F: ℝ^{k+1} → ℝ^k, for any defining
-system (grazing orbits in `_grazing_curve.py`, bifurcation points in
-`_bifurcation_curve.py`).
+system (grazing orbits in `grazing_curve.py`, bifurcation points in
+`bifurcation_curve.py`), and the corrector's pieces that `continue_orbit` shares with them
+(`bordered_newton`, `next_tangent`, `continuation_settings`).
 
 The engine knows nothing of orbits: a front end gives it `correct(Y_pred, tangent, origin)`,
 Newton's method on [F(Y); tangent·(Y − Y_pred)] = 0 followed by the new point's tangent and
@@ -23,7 +24,8 @@ from typing import Any, NamedTuple
 import jax.numpy as jnp
 import numpy as np
 
-from ._status import ContinuationStatus
+from .._status import ContinuationStatus
+from .period_map import SolverSettings, atol_for, jacobian_in_one_pass, orbit_scale, solver_name
 
 
 class CurvePoint(NamedTuple):
@@ -122,3 +124,58 @@ def progress_bar(enabled: bool, total: int, desc: str, *coordinates):
         yield report
     finally:
         bar.close()
+
+
+def write_text(text: str, path) -> str:
+    """`text`, also written to `path` if given (the `to_csv`/`to_json` exports)."""
+    if path is not None:
+        with open(path, "w", newline="") as f:
+            f.write(text)
+    return text
+
+
+def continuation_settings(orbit, rtol, atol, solver, newton_tol, max_newton_steps):
+    """The simulate keywords, [`grazejax.SolverSettings`][] and state scale of a
+    continuation from `orbit` (`atol=None`: scaled to the orbit's size)."""
+    scale = (orbit.settings.state_scale if orbit.settings is not None
+             else orbit_scale(np.asarray(orbit.x0)))
+    atol = atol_for(orbit, rtol, atol)
+    kw = dict(solver=solver, rtol=float(rtol), atol=float(atol), max_impacts=64,
+              max_solver_steps=50_000)
+    settings = SolverSettings(
+        solver=solver_name(solver), rtol=float(rtol), atol=float(atol),
+        newton_rtol=float(newton_tol), newton_atol=float(newton_tol) * scale,
+        max_steps=int(max_newton_steps), max_solver_steps=50_000, max_impacts=64,
+        state_scale=scale,
+    )
+    return kw, settings, scale
+
+
+def next_tangent(J, tangent):
+    """The null vector of the (k × k+1) Jacobian `J`, oriented along the previous
+    `tangent` (solves [J; tᵀ] τ = e_last), normalised: the next pseudo-arclength tangent."""
+    A = np.vstack([J, np.asarray(tangent)[None]])
+    rhs = np.zeros(A.shape[0])
+    rhs[-1] = 1.0
+    new_tangent = np.linalg.solve(A, rhs)
+    return new_tangent / np.linalg.norm(new_tangent)
+
+
+def eigvals_descending(matrix) -> np.ndarray:
+    """A concrete matrix's eigenvalues by modulus, descending (complex; numpy on the host),
+    for the continuation's per-point diagnostics."""
+    w = np.linalg.eigvals(np.asarray(matrix))
+    return w[np.argsort(-np.abs(w), kind="stable")].astype(complex)
+
+
+def bordered_newton(rows_of, root_finder, max_steps, Y_pred, tangent):
+    """Newton (`optx.root_find`) on [rows(Y); tangent·(Y − Y_pred)] = 0: the
+    pseudo-arclength corrector. Returns (Y, converged, number of steps)."""
+    import optimistix as optx
+
+    def bordered(Y, _):
+        return jnp.concatenate([rows_of(Y), jnp.dot(tangent, Y - Y_pred)[None]])
+
+    solution = optx.root_find(jacobian_in_one_pass(bordered), root_finder, Y_pred, None,
+                              max_steps=max_steps, throw=False)
+    return solution.value, solution.result == optx.RESULTS.successful, solution.stats["num_steps"]

@@ -36,20 +36,20 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, Complex, Float, Int
 
-from ._adjoint import loop_kinds
-from ._orbit_common import (
-    _ATOL_PER_RTOL,
-    _newton_for,
-    _PeriodMap,
-    _state_scale,
+from .._adjoint import loop_kinds
+from .._scene import Scene
+from .._tangents import without_derivative
+from .._validate import is_concrete
+from .period_map import (
+    ATOL_PER_RTOL,
+    PeriodMap,
     jacobian_in_one_pass,
+    newton_for,
     orbit_kernel,
+    orbit_scale,
     period_map_jacobian,
 )
-from ._periodic import OrbitStatus, diagnostics_map, eigvals_sorted, poincare_matrix
-from ._scene import Scene
-from ._tangents import without_derivative
-from ._validate import is_concrete
+from .periodic import OrbitStatus, diagnostics_map, eigvals_sorted, poincare_matrix
 
 KINDS = ("period-doubling", "fold", "neimark-sacker")
 
@@ -119,13 +119,13 @@ def test_function(kind: str, fixed_period: bool, monodromy, jac_T, j):
     raise ValueError(f"kind must be one of {KINDS}, got {kind!r}")
 
 
-class _System(eqx.Module):
+class DefiningSystem(eqx.Module):
     """The defining system's static parts: `residual(y, (nu, c, t0, T))` with y = (x, μ)
     (fixed period) or (T, x, μ) (free period, phase condition x_j = c). A Module of static
     fields: equal systems (the same scene, kind and parameter functions) share their
     compiled programs."""
 
-    pmap: _PeriodMap = eqx.field(static=True)
+    pmap: PeriodMap = eqx.field(static=True)
     kind: str = eqx.field(static=True)
     fixed_period: bool = eqx.field(static=True)
     args_of: Any = eqx.field(static=True)
@@ -222,13 +222,13 @@ def locate_bifurcation(
     y0 = np.concatenate([head, x_guess, [mu_guess]])
     params = (jnp.asarray(nu, float), jnp.asarray(x_guess[j] if j >= 0 else 0.0),
               jnp.asarray(t0), jnp.asarray(T_guess))
-    root_finder = _newton_for(newton_tol, max(scale, 1.0))
+    root_finder = newton_for(newton_tol, max(scale, 1.0))
     return _solve(system, root_finder, int(max_steps), jnp.asarray(y0), params)
 
 
 def defining_system(scene, point, kind, fixed_period: bool, args_of, period_of, fix, mu, nu,
                     simulate_kw: dict):
-    """The `_System` of `kind` around the guess `point` (its x0 at phase t0) at (μ, ν), the
+    """The `DefiningSystem` of `kind` around the guess `point` (its x0 at phase t0) at (μ, ν), the
     guess's state and its scale: `(system, x_guess, scale)`. Checks `kind`, `point.x0` and
     `fix`; `simulate_kw["atol"] = None` scales with the guess; a free period's phase index
     is `fix`, else the largest |f_j| at the guess (ν must then be concrete)."""
@@ -240,11 +240,11 @@ def defining_system(scene, point, kind, fixed_period: bool, args_of, period_of, 
     n = x_guess.shape[0]
     if fix is not None and not (isinstance(fix, (int, np.integer)) and 0 <= fix < n):
         raise ValueError(f"fix must be a coordinate index in [0, {n}), got {fix!r}")
-    scale = _state_scale(x_guess)
+    scale = orbit_scale(x_guess)
     kw = dict(simulate_kw)
     if kw["atol"] is None:
-        kw["atol"] = _ATOL_PER_RTOL * kw["rtol"] * scale
-    pmap = _PeriodMap(scene=scene, end_impacts=0, **dict(kw, atol=float(kw["atol"])))
+        kw["atol"] = ATOL_PER_RTOL * kw["rtol"] * scale
+    pmap = PeriodMap(scene=scene, end_impacts=0, **dict(kw, atol=float(kw["atol"])))
     if fixed_period:
         j = -1
     elif fix is None:
@@ -254,11 +254,11 @@ def defining_system(scene, point, kind, fixed_period: bool, args_of, period_of, 
         j = int(np.argmax(np.abs(np.asarray(jax.lax.stop_gradient(f0)))))
     else:
         j = int(fix)
-    return _System(pmap, kind, fixed_period, args_of, period_of, j), x_guess, scale
+    return DefiningSystem(pmap, kind, fixed_period, args_of, period_of, j), x_guess, scale
 
 
 @orbit_kernel
-def _solve(system: _System, root_finder, max_steps: int, y0, params):
+def _solve(system: DefiningSystem, root_finder, max_steps: int, y0, params):
     """Newton on the defining system, then the point's diagnostics (one program per
     system: the same scene, kind and parameter functions reuse it)."""
     y, converged, finite, num_steps = newton(system.residual, root_finder, y0, params,
@@ -282,7 +282,7 @@ def newton(residual, root_finder, y0, params, max_steps):
     return jnp.where(finite, y, y0), converged, finite, solution.stats["num_steps"]
 
 
-def _assess(system: _System, x, t0, T, mu, nu, converged, finite, num_steps):
+def _assess(system: DefiningSystem, x, t0, T, mu, nu, converged, finite, num_steps):
     """The point's diagnostics, with derivatives where they have them."""
 
     def tau(monodromy, jac_T):

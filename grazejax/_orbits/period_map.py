@@ -1,10 +1,9 @@
-"""What periodic orbits and their continuation share: the period map, its linearization,
-sampling, the (A5) verdict and the tolerance conventions.
+"""The period map, the floor of the orbit package: one flight of `simulate` over a
+period, its linearization, sampling, the (A5) verdict and the tolerance conventions.
 
-[`grazejax.find_periodic_orbit`][], [`grazejax.continue_orbit`][] and
-[`grazejax.continue_grazing`][] all solve for fixed points of the same period map with the
-same tolerance scaling; keeping it here (rather than in `_periodic`) lets each of them
-import it without reaching into another's private helpers.
+[`grazejax.find_periodic_orbit`][], [`grazejax.continue_orbit`][], the bifurcation systems
+and [`grazejax.continue_grazing`][] all solve for fixed points of this map with the same
+tolerance scaling; every orbit module reaches `simulate` through it.
 """
 
 from __future__ import annotations
@@ -19,12 +18,12 @@ import jax.lax as lax
 import jax.numpy as jnp
 import numpy as np
 
-from ._compiler import single_run_jit
-from ._flow import short_free_flow
-from ._geometry import gap_rates
-from ._scene import Scene
-from ._simulate import simulate
-from ._status import Status
+from .._compiler import single_run_jit
+from .._flow import short_free_flow
+from .._geometry import gap_rates
+from .._scene import Scene
+from .._simulate import simulate
+from .._status import Status
 
 
 @dataclasses.dataclass(frozen=True)
@@ -54,10 +53,10 @@ class SolverSettings:
 
 # Default absolute tolerances, relative to rtol × the orbit's size: atol = 1e-2 · rtol · size
 # (1e-12 for rtol = 1e-10 and an orbit of size 1, the former fixed default).
-_ATOL_PER_RTOL = 1e-2
+ATOL_PER_RTOL = 1e-2
 
 
-def _state_scale(*arrays) -> float:
+def orbit_scale(*arrays) -> float:
     """max |x| over concrete arrays (1 if they are all zero or not finite)."""
     values = [np.max(np.abs(np.asarray(a, float))) for a in arrays if np.size(a)]
     values = [v for v in values if np.isfinite(v)]
@@ -108,7 +107,7 @@ def jacobian_in_one_pass(fn):
     return call
 
 
-def _newton_for(newton_tol, scale):
+def newton_for(newton_tol, scale):
     """Newton's method with the tolerances `newton_tol` (relative) and `newton_tol · scale`.
 
     The tolerances are arrays: `eqx.filter_jit` traces arrays but treats Python floats as
@@ -117,30 +116,30 @@ def _newton_for(newton_tol, scale):
     """
     import optimistix as optx
 
-    rtol, atol = _newton_tolerances(newton_tol, scale)
+    rtol, atol = newton_tolerances(newton_tol, scale)
     return optx.Newton(rtol=jnp.asarray(rtol, float), atol=jnp.asarray(atol, float))
 
 
-def _newton_tolerances(newton_tol, scale):
+def newton_tolerances(newton_tol, scale):
     """The default Newton's `(rtol, atol)`: `newton_tol` relative, `newton_tol · scale`
     absolute (host values where the inputs are: `find_periodic_orbit` reports them)."""
     return newton_tol, newton_tol * scale
 
 
-def _atol_for(orbit, rtol, atol) -> float:
+def atol_for(orbit, rtol, atol) -> float:
     """`atol`, or (None) the default scaled to the orbit's size."""
     if atol is not None:
         return float(atol)
     settings = getattr(orbit, "settings", None)
-    scale = settings.state_scale if settings is not None else _state_scale(orbit.x0)
-    return _ATOL_PER_RTOL * float(rtol) * scale
+    scale = settings.state_scale if settings is not None else orbit_scale(orbit.x0)
+    return ATOL_PER_RTOL * float(rtol) * scale
 
 
-def _solver_name(solver) -> str:
+def solver_name(solver) -> str:
     return "default" if solver is None else type(solver).__name__
 
 
-def _a5(multipliers, fixed_period: bool):
+def a5_holds(multipliers, fixed_period: bool):
     modulus = jnp.abs(multipliers)
     if fixed_period:
         return jnp.all(modulus < 1) & jnp.all(jnp.isfinite(modulus))
@@ -152,7 +151,7 @@ def _a5(multipliers, fixed_period: bool):
     return jnp.all(others < 1, axis=-1) & jnp.all(jnp.isfinite(modulus), axis=-1)
 
 
-class _PeriodMap(eqx.Module):
+class PeriodMap(eqx.Module):
     """x0 ↦ P(x0, T) for one scene and one choice of where the period ends (all static)."""
 
     scene: Scene = eqx.field(static=True)
@@ -214,11 +213,11 @@ def _strongly_typed(leaf):
 
 
 @orbit_kernel
-def _run(pmap: _PeriodMap, x0, t0, t1, args):
+def run_period_map(pmap: PeriodMap, x0, t0, t1, args):
     return pmap.run(x0, t0, t1, args, pmap.max_impacts)
 
 
-def _linearize(pmap: _PeriodMap, x, t0, T, args, args_dot=None):
+def linearize(pmap: PeriodMap, x, t0, T, args, args_dot=None):
     """P(x, T) with ∂P/∂x (the monodromy), ∂P/∂T, the derivative along `args_dot` in
     parameter space (continuation's ∂P/∂μ; zero if not given), and the run behind it.
 
@@ -232,12 +231,12 @@ def _linearize(pmap: _PeriodMap, x, t0, T, args, args_dot=None):
 
 
 @orbit_kernel
-def _linearize_all(pmap: _PeriodMap, x, t0, T, args, args_dot):
+def _linearize_all(pmap: PeriodMap, x, t0, T, args, args_dot):
     x, T, args, args_dot = lax.stop_gradient((x, T, args, args_dot))
     return period_map_jacobian(pmap, x, t0, T, args, args_dot)
 
 
-def period_map_jacobian(pmap: _PeriodMap, x, t0, T, args, args_dot):
+def period_map_jacobian(pmap: PeriodMap, x, t0, T, args, args_dot):
     """`(x_end, ∂x_end/∂x, ∂x_end/∂T, ∂x_end/∂args·args_dot, ok, sol)` of the period map,
     differentiable in its inputs (a derivative of it is a second derivative of the flow)."""
     n = x.shape[0]
@@ -254,7 +253,7 @@ def period_map_jacobian(pmap: _PeriodMap, x, t0, T, args, args_dot):
 
 
 @orbit_kernel
-def _sampled(pmap: _PeriodMap, x0, t0, t1, args, ts):
+def sampled_states(pmap: PeriodMap, x0, t0, t1, args, ts):
     sol = simulate(
         pmap.scene, x0, t0, t1, args, solver=pmap.solver, rtol=pmap.rtol, atol=pmap.atol,
         max_impacts=pmap.max_impacts, max_steps=pmap.max_solver_steps, direction=1, saveat=ts,
@@ -269,64 +268,9 @@ def gap_rates_at(gap, field, t, x, args):
     return gap_rates(gap, field, t, x, args)
 
 
-def _state_at(pmap: _PeriodMap, x0, t0, t, args):
+def state_at(pmap: PeriodMap, x0, t0, t, args):
     """x(t) (left-continuous) on the trajectory from (t0, x0)."""
     if t <= t0:
         return np.asarray(x0, float)
-    sol = _run(pmap, jnp.asarray(x0, float), jnp.asarray(t0, float), jnp.asarray(t, float), args)
+    sol = run_period_map(pmap, jnp.asarray(x0, float), jnp.asarray(t0, float), jnp.asarray(t, float), args)
     return np.asarray(sol.x_final)
-
-
-def _write_text(text: str, path) -> str:
-    """`text`, also written to `path` if given (the `to_csv`/`to_json` exports)."""
-    if path is not None:
-        with open(path, "w", newline="") as f:
-            f.write(text)
-    return text
-
-
-def _continuation_settings(orbit, rtol, atol, solver, newton_tol, max_newton_steps):
-    """The simulate keywords, [`grazejax.SolverSettings`][] and state scale of a
-    continuation from `orbit` (`atol=None`: scaled to the orbit's size)."""
-    scale = (orbit.settings.state_scale if orbit.settings is not None
-             else _state_scale(np.asarray(orbit.x0)))
-    atol = _atol_for(orbit, rtol, atol)
-    kw = dict(solver=solver, rtol=float(rtol), atol=float(atol), max_impacts=64,
-              max_solver_steps=50_000)
-    settings = SolverSettings(
-        solver=_solver_name(solver), rtol=float(rtol), atol=float(atol),
-        newton_rtol=float(newton_tol), newton_atol=float(newton_tol) * scale,
-        max_steps=int(max_newton_steps), max_solver_steps=50_000, max_impacts=64,
-        state_scale=scale,
-    )
-    return kw, settings, scale
-
-
-def _next_tangent(J, tangent):
-    """The null vector of the (k × k+1) Jacobian `J`, oriented along the previous
-    `tangent` (solves [J; tᵀ] τ = e_last), normalised: the next pseudo-arclength tangent."""
-    A = np.vstack([J, np.asarray(tangent)[None]])
-    rhs = np.zeros(A.shape[0])
-    rhs[-1] = 1.0
-    new_tangent = np.linalg.solve(A, rhs)
-    return new_tangent / np.linalg.norm(new_tangent)
-
-
-def eigvals_descending(matrix) -> np.ndarray:
-    """A concrete matrix's eigenvalues by modulus, descending (complex; numpy on the host),
-    for the continuation's per-point diagnostics."""
-    w = np.linalg.eigvals(np.asarray(matrix))
-    return w[np.argsort(-np.abs(w), kind="stable")].astype(complex)
-
-
-def _bordered_newton(rows_of, root_finder, max_steps, Y_pred, tangent):
-    """Newton (`optx.root_find`) on [rows(Y); tangent·(Y − Y_pred)] = 0: the
-    pseudo-arclength corrector. Returns (Y, converged, number of steps)."""
-    import optimistix as optx
-
-    def bordered(Y, _):
-        return jnp.concatenate([rows_of(Y), jnp.dot(tangent, Y - Y_pred)[None]])
-
-    solution = optx.root_find(jacobian_in_one_pass(bordered), root_finder, Y_pred, None,
-                              max_steps=max_steps, throw=False)
-    return solution.value, solution.result == optx.RESULTS.successful, solution.stats["num_steps"]

@@ -35,25 +35,25 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._arclength import CurvePoint, Steps, progress_bar, trace
-from ._bifurcation import BifurcationPoint, assessed_point, newton
-from ._continuation import GrazingPoint
-from ._geometry import gap_rates
-from ._orbit_common import (
-    SolverSettings,
-    _bordered_newton,
-    _continuation_settings,
-    _newton_for,
-    _next_tangent,
-    _PeriodMap,
-    _sampled,
-    _write_text,
-    orbit_kernel,
+from .._geometry import gap_rates
+from .._scene import Scene
+from .._status import ContinuationStatus
+from .._validate import is_concrete
+from .arclength import (
+    CurvePoint,
+    Steps,
+    bordered_newton,
+    continuation_settings,
+    next_tangent,
+    progress_bar,
+    trace,
+    write_text,
 )
-from ._periodic import Orbit, OrbitStatus, orbit_contacts
-from ._scene import Scene
-from ._status import ContinuationStatus
-from ._validate import is_concrete
+from .bifurcation import BifurcationPoint, assessed_point, newton
+from .contacts import orbit_contacts
+from .continuation import GrazingPoint
+from .period_map import PeriodMap, SolverSettings, newton_for, orbit_kernel, sampled_states
+from .periodic import Orbit, OrbitStatus
 
 
 class GrazingCurve(eqx.Module):
@@ -109,7 +109,7 @@ class GrazingCurve(eqx.Module):
             values = [self.mu[i], self.nu[i], self.t0[i], self.period[i], *self.x0[i],
                       self.curvature[i], self.min_gap[i]]
             w.writerow([repr(float(v)) for v in values] + [int(self.num_impacts[i])])
-        return _write_text(out.getvalue(), path)
+        return write_text(out.getvalue(), path)
 
 
 # --------------------------------------------------------------------------------------
@@ -118,12 +118,12 @@ class GrazingCurve(eqx.Module):
 
 
 class _GrazingSystem(eqx.Module):
-    pmap: _PeriodMap = eqx.field(static=True)  # the flow without the grazed surface
+    pmap: PeriodMap = eqx.field(static=True)  # the flow without the grazed surface
     phi: Callable = eqx.field(static=True)
     args_of: Callable = eqx.field(static=True)
     period_of: Callable | None = eqx.field(static=True)
     fixed_period: bool = eqx.field(static=True)
-    root_finder: Any  # (its tolerances are arrays: see `_newton_for`)
+    root_finder: Any  # (its tolerances are arrays: see `newton_for`)
     max_steps: int = eqx.field(static=True)
 
 
@@ -149,7 +149,7 @@ def _residual(system: _GrazingSystem, Y, t_fixed, T_fixed):
 @orbit_kernel
 def _corrector(system: _GrazingSystem, Y_pred, tangent, t_fixed, T_fixed):
     """Newton on [G(Y); tangent·(Y − Y_pred)] = 0."""
-    return _bordered_newton(lambda Y: _residual(system, Y, t_fixed, T_fixed), system.root_finder,
+    return bordered_newton(lambda Y: _residual(system, Y, t_fixed, T_fixed), system.root_finder,
                             system.max_steps, Y_pred, tangent)
 
 
@@ -165,7 +165,7 @@ def _diagnostics(system: _GrazingSystem, Y, t_fixed, T_fixed, ts_unit):
     t0, T, x, mu, nu = _unpack(system, Y, t_fixed, T_fixed)
     args = system.args_of(mu, nu)
     _, _, curvature = gap_rates(system.phi, system.pmap.scene.vector_field, t0, x, args)
-    sol = _sampled(system.pmap, x, t0, t0 + T, args, t0 + T * ts_unit)
+    sol = sampled_states(system.pmap, x, t0, t0 + T, args, t0 + T * ts_unit)
     gaps = jax.vmap(lambda t, y: system.phi(t, y, args))(t0 + T * ts_unit, sol.xs)
     return curvature, jnp.min(gaps), sol.num_impacts, T
 
@@ -190,7 +190,7 @@ def _correct(system, Y_pred, tangent, t_fixed, T_fixed, ts_unit) -> CurvePoint |
     J = np.asarray(_jacobian(system, Y, t_fixed, T_fixed))
     if not np.all(np.isfinite(J)):
         return None
-    new_tangent = _next_tangent(J, tangent)
+    new_tangent = next_tangent(J, tangent)
     curvature, min_gap, k, T = (np.asarray(v) for v in _diagnostics(system, Y, t_fixed, T_fixed,
                                                                       ts_unit))
     return CurvePoint(Y_np, new_tangent, int(steps), _Diagnostics(
@@ -230,10 +230,10 @@ def _system_for(scene, surface, args_of, period_of, fixed, newton_tol, scale, ma
     # The same surfaces minus the grazed one: a Scene hashes by its fields, so repeated
     # calls rebuild an equal scene and reuse the compiled programs.
     others = [s for i, s in enumerate(scene.surfaces) if i != surface]
-    pmap = _PeriodMap(scene=Scene(scene.vector_field, others), end_impacts=0, **kw)
+    pmap = PeriodMap(scene=Scene(scene.vector_field, others), end_impacts=0, **kw)
     return _GrazingSystem(
         pmap=pmap, phi=scene.surfaces[surface].phi, args_of=args_of, period_of=period_of,
-        fixed_period=fixed, root_finder=_newton_for(newton_tol, scale),
+        fixed_period=fixed, root_finder=newton_for(newton_tol, scale),
         max_steps=int(max_newton_steps),
     )
 
@@ -331,7 +331,7 @@ def continue_grazing(
     if not isinstance(point, GrazingPoint | Orbit):
         raise TypeError("point must be a grazejax.GrazingPoint or a grazejax.Orbit")
     orbit = point.orbit if isinstance(point, GrazingPoint) else point
-    kw, settings, scale = _continuation_settings(orbit, rtol, atol, solver, newton_tol,
+    kw, settings, scale = continuation_settings(orbit, rtol, atol, solver, newton_tol,
                                                  max_newton_steps)
     surface, t_c, x_c, orbit = _contact_of(scene, point, args_of(mu_start, nu_start), surface, kw)
     fixed = bool(orbit.fixed_period)
@@ -422,7 +422,7 @@ def locate_grazing(
         raise ValueError("locate_grazing: with a traced nu (jit, jacfwd, grad), pass nu_guess, "
                          "the concrete ν of the guess orbit")
     orbit = point.orbit if isinstance(point, GrazingPoint) else point
-    kw, _, scale = _continuation_settings(orbit, rtol, atol, solver, newton_tol, max_steps)
+    kw, _, scale = continuation_settings(orbit, rtol, atol, solver, newton_tol, max_steps)
     # (host work on concrete values, also when called inside `jit`: the guess's contact)
     with jax.ensure_compile_time_eval():
         guess_args = args_of(float(mu), nu_guess) if isinstance(point, Orbit) else None
