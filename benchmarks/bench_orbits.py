@@ -36,8 +36,9 @@ import numpy as np
 
 import grazejax as gj  # noqa: F401  (turns float64 on)
 from grazejax import examples as ex
-from grazejax._continuation import continue_orbit
-from grazejax._periodic import find_periodic_orbit, floquet_multipliers
+from grazejax._orbits.continuation import continue_orbit
+from grazejax._orbits.floquet import floquet_multipliers
+from grazejax._orbits.periodic import find_periodic_orbit
 
 TOL = dict(rtol=1e-10, atol=1e-12)
 

@@ -39,7 +39,6 @@ import numpy as np
 from . import examples, plot
 from ._compiler import compiler_options, single_run_jit
 from ._conditions import check_conditions
-from ._continuation import continue_orbit
 from ._linearize import (
     _prepare_point,
     _w_maps,
@@ -48,7 +47,9 @@ from ._linearize import (
     flow_jacobian,
     one_sided_jacobians,
 )
-from ._periodic import find_periodic_orbit, grazing_branches, orbit_contacts
+from ._orbits.contacts import grazing_branches, orbit_contacts
+from ._orbits.continuation import continue_orbit
+from ._orbits.periodic import find_periodic_orbit
 from ._simulate import simulate
 from ._solution import Solution
 from ._status import ImpactKind, Status

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 import grazejax as gj
-from grazejax._bifurcation import bialternate_square
+from grazejax._orbits.bifurcation import bialternate_square
 
 from .test_orbit_derivatives import OMEGA, PERIOD, TABLE, apex_start, table_args
 

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import grazejax as gj
-from grazejax._bifurcation_curve import _codim2_points, _watched
+from grazejax._orbits.bifurcation_curve import _codim2_points, _watched
 
 from .test_bifurcation import E, args_of, fold_closed, guess, period_doubling_closed
 from .test_orbit_derivatives import TABLE, table_orbit
@@ -85,8 +85,8 @@ def test_fold_curve_from_a_branch_point_matches_the_closed_form():
 
 
 def _points(multiplier_rows, impacts=None, nus=None):
-    from grazejax._arclength import CurvePoint
-    from grazejax._bifurcation_curve import _Diagnostics
+    from grazejax._orbits.arclength import CurvePoint
+    from grazejax._orbits.bifurcation_curve import _Diagnostics
 
     rows = [np.asarray(r, complex) for r in multiplier_rows]
     nus = np.arange(len(rows), dtype=float) if nus is None else nus

@@ -7,12 +7,12 @@ import pytest
 
 import grazejax as gj
 from grazejax import examples as ex
-from grazejax._continuation import (
+from grazejax._orbits.continuation import (
     ContinuationStatus,
     continue_orbit,
     plot_bifurcation_diagram,
 )
-from grazejax._periodic import OrbitStatus, find_periodic_orbit
+from grazejax._orbits.periodic import OrbitStatus, find_periodic_orbit
 
 from .test_periodic import (  # shared scenes: shared compiled programs
     EPS,

@@ -17,15 +17,9 @@ import scipy.optimize
 
 import grazejax as gj
 from grazejax import examples as ex
-from grazejax._periodic import (
-    OrbitStatus,
-    find_periodic_orbit,
-    floquet_multipliers,
-    grazing_branches,
-    orbit_contacts,
-    product_eigenvalues,
-    saltation,
-)
+from grazejax._orbits.contacts import grazing_branches, orbit_contacts
+from grazejax._orbits.floquet import floquet_multipliers, product_eigenvalues, saltation
+from grazejax._orbits.periodic import OrbitStatus, find_periodic_orbit
 
 from .helpers import central_differences
 
@@ -136,7 +130,7 @@ def test_period_derivative_by_implicit_function_theorem():
 def test_orbits_of_other_sizes_share_one_compiled_newton():
     """Newton's absolute tolerance follows each orbit's size (newton_tol · max |x|): it is
     an input of the compiled solver, not part of it (a new program per orbit took ~30 s)."""
-    from grazejax._periodic import _newton
+    from grazejax._orbits.periodic import _newton
 
     programs, newton_atols = [], []
     for mu in (-0.2, -0.05):
@@ -165,7 +159,7 @@ def test_newton_residual_linearizes_in_one_pass():
     """Newton linearizes its residual with `jax.linearize`, which runs a while loop twice
     (primal, then the whole loop again for the tangents). `jacobian_in_one_pass` gives the
     same value and derivatives (in y, in args, forward and reverse) from one pass."""
-    from grazejax._orbit_common import jacobian_in_one_pass
+    from grazejax._orbits.period_map import jacobian_in_one_pass
 
     def residual(y, a):
         x_end = gj.simulate(EX1DOF, y, 0.0, 3.0, a, max_impacts=4, adjoint=diffrax.DirectAdjoint(),
