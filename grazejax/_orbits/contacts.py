@@ -4,6 +4,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import Any
 
@@ -271,75 +272,15 @@ def grazing_branches(scene: Scene, orbit: Orbit, args=None, *, contact_tol: floa
     pmap = PeriodMap(scene=scene, end_impacts=0, solver=solver, rtol=float(rtol),
                       atol=float(atol), max_impacts=64, max_solver_steps=50_000)
     contacts = orbit_contacts(scene, orbit, args, solver=solver, rtol=rtol, atol=atol)
-    graze = contacts.grazing(contact_tol)
-    t0, T = float(orbit.t0), float(orbit.period)
-    x0 = np.asarray(orbit.x0, float)
-    n = x0.shape[0]
-    autonomous = not orbit.fixed_period
-
-    # Base point: the middle of the longest stretch between events (impacts, contacts).
-    events = np.sort(np.concatenate([np.asarray(contacts.times, float), [t0]]))
-    gaps = np.diff(np.concatenate([events, [events[0] + T]]))
-    m = int(np.argmax(gaps))
-    t_s = events[m] + 0.5 * gaps[m]
-    if t_s >= t0 + T:
-        t_s -= T
-    x_s = state_at(pmap, x0, t0, t_s, args)
-    f_s = np.asarray(scene.vector_field(jnp.asarray(t_s), jnp.asarray(x_s), args), float)
-    if autonomous:
-        normal = f_s / np.linalg.norm(f_s)
-        q, _ = np.linalg.qr(np.column_stack([normal, np.eye(n)]))
-        basis = q[:, 1:n]
-    else:
-        normal = None
-        basis = np.eye(n)
-    d = basis.shape[1]
-
-    c_times = np.asarray(contacts.times, float)[graze]
-    c_times = np.where(c_times < t_s, c_times + T, c_times)  # times on the loop from t_s
-    c_surfaces = np.asarray(contacts.surfaces)[graze]
-    order = np.argsort(c_times)
-    c_times, c_surfaces = c_times[order], c_surfaces[order]
-    c_points = np.asarray(contacts.points, float)[graze][order]
-    num_contacts = len(c_times)
-    all_times = np.sort(np.concatenate([np.asarray(contacts.times, float), [t_s, t_s + T]]))
-    window = [0.25 * np.min(np.diff(np.unique(np.concatenate([all_times, all_times + T]))))] * num_contacts
-    key = list(zip(c_times, c_surfaces.tolist(), strict=True))
-
-    def return_jacobian(start):
-        """Jacobian of the return map to Σ (or of the time-T map) at `start`."""
-        tau = T
-        if autonomous:
-            for _ in range(3):
-                end = np.asarray(run_period_map(pmap, jnp.asarray(start), jnp.asarray(t_s),
-                                      jnp.asarray(t_s + tau), args).x_final)
-                f_end = np.asarray(scene.vector_field(jnp.asarray(t_s + tau), jnp.asarray(end), args))
-                tau -= float(normal @ (end - x_s)) / float(normal @ f_end)
-        M = np.asarray(linearize(pmap, jnp.asarray(start), jnp.asarray(t_s), jnp.asarray(tau), args)[1])
-        if not autonomous:
-            return M
-        end = np.asarray(run_period_map(pmap, jnp.asarray(start), jnp.asarray(t_s), jnp.asarray(t_s + tau), args).x_final)
-        f_end = np.asarray(scene.vector_field(jnp.asarray(t_s + tau), jnp.asarray(end), args))
-        project = np.eye(n) - np.outer(f_end, normal) / float(normal @ f_end)
-        return basis.T @ project @ M @ basis
-
-    def measure(delta_vec):
-        start = x_s + basis @ delta_vec
-        dep, hit, _ = _contact_depths(pmap, scene, start, t_s, t_s + 1.05 * T, key, args, window)
-        return dep, hit
-
+    section = _base_section(pmap, orbit, contacts, contact_tol, args)
+    t0, T = float(orbit.t0), section.period
+    n, d = section.basis.shape
+    num_contacts = len(section.contact_times)
     if num_contacts == 0:
         patterns = [()]
-        G = np.zeros((0, d))
     else:
-        # Depth gradients in Σ, by central differences (depth is continuous across grazing).
-        h = 1e-6 * max(1.0, float(np.max(np.abs(x_s))))
-        G = np.zeros((num_contacts, d))
-        for j in range(d):
-            e = np.zeros(d)
-            e[j] = h
-            G[:, j] = (measure(e)[0] - measure(-e)[0]) / (2 * h)
         patterns = [tuple(bool(b) for b in bits) for bits in np.ndindex(*(2,) * num_contacts)]
+        gradient = section.depth_gradients()
 
     m_branches = len(patterns)
     jac = np.full((m_branches, d, d), np.nan)
@@ -349,57 +290,170 @@ def grazing_branches(scene: Scene, orbit: Orbit, args=None, *, contact_tol: floa
     realized = np.zeros(m_branches, bool)
     for b, pattern in enumerate(patterns):
         if num_contacts == 0:
-            samples = [return_jacobian(x_s)]
-            used = np.array([0.0])
+            samples, used = [section.return_jacobian(section.x_s)], [0.0]
             realized[b] = True
         else:
-            sign = np.array([-1.0 if hit else 1.0 for hit in pattern])
-            pinv = np.linalg.pinv(G)
-            samples, used = [], []
-            for delta in depths:
-                target = sign * delta
-                dv = pinv @ target
-                ok = False
-                for _ in range(3):  # correct the linear model with the measured depths
-                    dep, hit = measure(dv)
-                    if np.array_equal(hit, np.array(pattern)) and np.all(np.sign(dep) == sign):
-                        ok = True
-                        break
-                    dv = dv + pinv @ (target - np.where(np.isfinite(dep), dep, 0.0))
-                if ok:
-                    samples.append(return_jacobian(x_s + basis @ dv))
-                    used.append(delta)
+            samples, used = section.pattern_samples(pattern, gradient, depths)
             realized[b] = len(samples) >= 3
         if not realized[b]:
             continue
-        samples = np.stack(samples)
-        used = np.asarray(used)
-        if num_contacts == 0:
-            limit, grows = samples[0], False
-        else:
-            norms = np.array([np.linalg.norm(s) for s in samples])
-            slope = np.polyfit(np.log(used[-3:]), np.log(norms[-3:]), 1)[0]
-            grows = slope < -0.25
-            design = np.column_stack([np.ones_like(used), np.sqrt(used), used])
-            coef, *_ = np.linalg.lstsq(design, samples.reshape(len(used), -1), rcond=None)
-            limit = coef[0].reshape(d, d)
+        limit, grows = _extrapolated_limit(np.stack(samples), np.asarray(used), num_contacts)
         if grows or not np.all(np.isfinite(limit)):
             mult[b] = np.inf
             continue
         finite[b] = True
         jac[b] = limit
-        if autonomous:
-            mono[b] = np.outer(normal, normal) + basis @ limit @ basis.T
-            rho = np.concatenate([[1.0 + 0j], np.linalg.eigvals(limit)])
-        else:
-            mono[b] = limit
-            rho = np.linalg.eigvals(limit).astype(complex)
-        mult[b] = rho[np.argsort(-np.abs(rho), kind="stable")]
+        mono[b], mult[b] = section.monodromy(limit)
     a5 = np.asarray(a5_holds(jnp.asarray(mult), orbit.fixed_period)) & finite
+    c_times = section.contact_times
     return GrazingBranches(
         contact_times=np.where(c_times >= t0 + T, c_times - T, c_times),
-        contact_points=c_points, contact_surfaces=c_surfaces,
+        contact_points=section.contact_points, contact_surfaces=section.contact_surfaces,
         impacts=np.array(patterns, bool).reshape(m_branches, num_contacts), section_jacobian=jac,
         monodromy=mono, multipliers=mult, finite=finite, realized=realized, a5=a5,
-        base_time=t_s, base_point=x_s, section_basis=basis, depths=depths,
+        base_time=section.t_s, base_point=section.x_s, section_basis=section.basis,
+        depths=depths,
     )
+
+
+@dataclasses.dataclass(frozen=True)
+class _Section:
+    """The section Σ of a grazing orbit's branches: through the point (t_s, x_s) of the
+    orbit away from all contacts, normal to the flow there for an autonomous orbit (`normal`;
+    None for a forced one, whose map is the time-T map), with an orthonormal `basis` of Σ,
+    and the grazing contacts in the order the loop from t_s meets them."""
+
+    pmap: PeriodMap
+    args: Any
+    period: float
+    t_s: float
+    x_s: np.ndarray
+    normal: np.ndarray | None
+    basis: np.ndarray
+    contact_times: np.ndarray  # on the loop from t_s (may exceed t0 + T)
+    contact_surfaces: np.ndarray
+    contact_points: np.ndarray
+    window: list  # how far from each contact time an impact counts as that contact's
+
+    def return_jacobian(self, start):
+        """Jacobian of the return map to Σ (or of the time-T map) at `start`."""
+        pmap, args, t_s = self.pmap, self.args, self.t_s
+        field = pmap.scene.vector_field
+        tau = self.period
+        if self.normal is None:
+            return np.asarray(linearize(pmap, jnp.asarray(start), jnp.asarray(t_s),
+                                        jnp.asarray(tau), args)[1])
+        for _ in range(3):
+            end = np.asarray(run_period_map(pmap, jnp.asarray(start), jnp.asarray(t_s),
+                                            jnp.asarray(t_s + tau), args).x_final)
+            f_end = np.asarray(field(jnp.asarray(t_s + tau), jnp.asarray(end), args))
+            tau -= float(self.normal @ (end - self.x_s)) / float(self.normal @ f_end)
+        M = np.asarray(linearize(pmap, jnp.asarray(start), jnp.asarray(t_s), jnp.asarray(tau),
+                                 args)[1])
+        end = np.asarray(run_period_map(pmap, jnp.asarray(start), jnp.asarray(t_s),
+                                        jnp.asarray(t_s + tau), args).x_final)
+        f_end = np.asarray(field(jnp.asarray(t_s + tau), jnp.asarray(end), args))
+        n = self.x_s.shape[0]
+        project = np.eye(n) - np.outer(f_end, self.normal) / float(self.normal @ f_end)
+        return self.basis.T @ project @ M @ self.basis
+
+    def measure(self, delta_vec):
+        """Signed depths at the contacts, and whether each was an impact, for the neighbour
+        that starts at x_s + basis · delta_vec."""
+        start = self.x_s + self.basis @ delta_vec
+        key = list(zip(self.contact_times, self.contact_surfaces.tolist(), strict=True))
+        dep, hit, _ = _contact_depths(self.pmap, self.pmap.scene, start, self.t_s,
+                                      self.t_s + 1.05 * self.period, key, self.args, self.window)
+        return dep, hit
+
+    def depth_gradients(self):
+        """The contacts' depths' gradients in Σ, by central differences (a depth is
+        continuous across grazing)."""
+        h = 1e-6 * max(1.0, float(np.max(np.abs(self.x_s))))
+        d = self.basis.shape[1]
+        G = np.zeros((len(self.contact_times), d))
+        for j in range(d):
+            e = np.zeros(d)
+            e[j] = h
+            G[:, j] = (self.measure(e)[0] - self.measure(-e)[0]) / (2 * h)
+        return G
+
+    def pattern_samples(self, pattern, gradient, depths):
+        """Return-map Jacobians of neighbours that realize the impact `pattern` at each
+        depth δ (each contact's depth set to ±δ), and the depths that were realized."""
+        sign = np.array([-1.0 if hit else 1.0 for hit in pattern])
+        pinv = np.linalg.pinv(gradient)
+        samples, used = [], []
+        for delta in depths:
+            target = sign * delta
+            dv = pinv @ target
+            ok = False
+            for _ in range(3):  # correct the linear model with the measured depths
+                dep, hit = self.measure(dv)
+                if np.array_equal(hit, np.array(pattern)) and np.all(np.sign(dep) == sign):
+                    ok = True
+                    break
+                dv = dv + pinv @ (target - np.where(np.isfinite(dep), dep, 0.0))
+            if ok:
+                samples.append(self.return_jacobian(self.x_s + self.basis @ dv))
+                used.append(delta)
+        return samples, used
+
+    def monodromy(self, limit):
+        """The full monodromy matrix and its multipliers (modulus descending) from a
+        branch's limit Jacobian on Σ (the flow direction's multiplier 1 restored)."""
+        if self.normal is None:
+            mono, rho = limit, np.linalg.eigvals(limit).astype(complex)
+        else:
+            mono = np.outer(self.normal, self.normal) + self.basis @ limit @ self.basis.T
+            rho = np.concatenate([[1.0 + 0j], np.linalg.eigvals(limit)])
+        return mono, rho[np.argsort(-np.abs(rho), kind="stable")]
+
+
+def _base_section(pmap, orbit, contacts, contact_tol, args) -> _Section:
+    """Σ through the middle of the longest stretch of the orbit between events (impacts,
+    contacts), with the grazing contacts (|virtual depth| ≤ `contact_tol`)."""
+    scene = pmap.scene
+    graze = contacts.grazing(contact_tol)
+    t0, T = float(orbit.t0), float(orbit.period)
+    x0 = np.asarray(orbit.x0, float)
+    n = x0.shape[0]
+    events = np.sort(np.concatenate([np.asarray(contacts.times, float), [t0]]))
+    gaps = np.diff(np.concatenate([events, [events[0] + T]]))
+    m = int(np.argmax(gaps))
+    t_s = events[m] + 0.5 * gaps[m]
+    if t_s >= t0 + T:
+        t_s -= T
+    x_s = state_at(pmap, x0, t0, t_s, args)
+    f_s = np.asarray(scene.vector_field(jnp.asarray(t_s), jnp.asarray(x_s), args), float)
+    if orbit.fixed_period:
+        normal, basis = None, np.eye(n)
+    else:
+        normal = f_s / np.linalg.norm(f_s)
+        q, _ = np.linalg.qr(np.column_stack([normal, np.eye(n)]))
+        basis = q[:, 1:n]
+    c_times = np.asarray(contacts.times, float)[graze]
+    c_times = np.where(c_times < t_s, c_times + T, c_times)  # times on the loop from t_s
+    c_surfaces = np.asarray(contacts.surfaces)[graze]
+    order = np.argsort(c_times)
+    all_times = np.sort(np.concatenate([np.asarray(contacts.times, float), [t_s, t_s + T]]))
+    spacing = np.min(np.diff(np.unique(np.concatenate([all_times, all_times + T]))))
+    return _Section(
+        pmap=pmap, args=args, period=T, t_s=t_s, x_s=x_s, normal=normal, basis=basis,
+        contact_times=c_times[order], contact_surfaces=c_surfaces[order],
+        contact_points=np.asarray(contacts.points, float)[graze][order],
+        window=[0.25 * spacing] * len(c_times),
+    )
+
+
+def _extrapolated_limit(samples, used, num_contacts):
+    """The δ → 0 limit of a branch's Jacobians by least squares in (1, √δ, δ), and whether
+    they grow like δ^(−1/2) instead (Nordmark's square-root singularity: no limit)."""
+    if num_contacts == 0:
+        return samples[0], False
+    d = samples.shape[-1]
+    norms = np.array([np.linalg.norm(s) for s in samples])
+    slope = np.polyfit(np.log(used[-3:]), np.log(norms[-3:]), 1)[0]
+    design = np.column_stack([np.ones_like(used), np.sqrt(used), used])
+    coef, *_ = np.linalg.lstsq(design, samples.reshape(len(used), -1), rcond=None)
+    return coef[0].reshape(d, d), slope < -0.25

@@ -679,29 +679,9 @@ def find_periodic_orbit(
     print(orbit.summary())   # period 6.283185307..., multipliers 1 and exp(−2π·1e-4·0.64)
     ```
     """
-    if not isinstance(scene, Scene):
-        raise TypeError(f"scene must be a grazejax.Scene, got {type(scene).__name__}")
     x_guess = jnp.asarray(x0, dtype=float)
-    if x_guess.ndim != 1:
-        raise ValueError(f"x0 must be a state vector of shape (n,), got shape {x_guess.shape}")
+    _check_arguments(scene, x_guess, period, fix, max_steps, num_impacts, adjoint)
     n = x_guess.shape[0]
-    if fix is not None and not (isinstance(fix, (int, np.integer)) and 0 <= fix < n):
-        raise ValueError(f"fix must be a coordinate index in [0, {n}), got {fix!r}")
-    if not isinstance(max_steps, (int, np.integer)) or max_steps < 1:
-        raise ValueError(f"max_steps must be a positive integer, got {max_steps!r}")
-    if num_impacts is not None and (not isinstance(num_impacts, (int, np.integer)) or num_impacts < 0):
-        raise ValueError(f"num_impacts must be a non-negative integer, got {num_impacts!r}")
-    if is_concrete(period) and not (np.isfinite(float(period)) and float(period) > 0):
-        raise ValueError(f"period must be a positive finite number, got {float(period)}")
-    if is_concrete(x_guess) and not np.all(np.isfinite(np.asarray(x_guess))):
-        raise ValueError(f"x0 contains NaN or inf: {np.asarray(x_guess)}")
-
-    if not loop_kinds(adjoint).forward:
-        raise ValueError(
-            "find_periodic_orbit: Newton's method linearises the period map in forward mode, "
-            "which adjoint=diffrax.RecursiveCheckpointAdjoint() does not support; pass "
-            "adjoint=diffrax.DirectAdjoint() to differentiate the orbit with jax.grad"
-        )
     # Absolute tolerances scale with the orbit (a guess that is traced counts as size 1).
     scale = orbit_scale(x_guess) if is_concrete(x_guess) else 1.0
     scaled_atol = atol is None
@@ -710,23 +690,8 @@ def find_periodic_orbit(
         scene=scene, end_impacts=0, solver=solver, rtol=float(rtol), atol=atol_used,
         max_impacts=int(max_impacts), max_solver_steps=int(max_solver_steps),
     )
-    if start_at_impact is None or (start_at_impact and num_impacts is None):
-        if not is_concrete(x_guess, period, args, t0):
-            raise ValueError(
-                "inside jit/vmap/jacfwd (traced x0, period, args or t0) pass "
-                "start_at_impact (and num_impacts when True): they select the compiled "
-                "period map, and detecting them needs a concrete guess"
-            )
-        detected_start, detected_k = _detect_start(pmap, x_guess, float(t0), float(period), args)
-        if start_at_impact is None:
-            start_at_impact = detected_start
-        if num_impacts is None and start_at_impact:
-            num_impacts = detected_k if detected_start else None
-        if start_at_impact and not num_impacts:
-            raise ValueError(
-                "start_at_impact=True but the guess trajectory has no impact near t0 + T: "
-                "pass num_impacts"
-            )
+    start_at_impact, num_impacts = _impact_start(pmap, x_guess, t0, period, args,
+                                                 start_at_impact, num_impacts)
     pmap = dataclasses.replace(pmap, end_impacts=int(num_impacts) if start_at_impact else 0)
     user_root_finder = root_finder is not None
     if root_finder is None:
@@ -765,17 +730,8 @@ def find_periodic_orbit(
     out = _differentiable_diagnostics(diagnostics_map(pmap, adjoint), fixed_period, n, out,
                                       x0, T, t0_live, args, j)
     t0 = t0_live
-    if user_root_finder:
-        newton_rtol, newton_atol = (_host_float(getattr(root_finder, name, math.nan))
-                                    for name in ("rtol", "atol"))
-    else:
-        newton_rtol, newton_atol = map(float, newton_tolerances(newton_tol, scale))
-    settings = SolverSettings(
-        solver=solver_name(solver), rtol=float(rtol), atol=atol_used,
-        newton_rtol=newton_rtol, newton_atol=newton_atol,
-        max_steps=int(max_steps),
-        max_solver_steps=int(max_solver_steps), max_impacts=int(max_impacts), state_scale=scale,
-    )
+    settings = _settings_used(solver, rtol, atol_used, root_finder if user_root_finder else None,
+                              newton_tol, scale, max_steps, max_solver_steps, max_impacts)
     orbit = Orbit(x0=x0, t0=t0, period=T, num_steps=num_steps,
                   start_at_impact=bool(start_at_impact), fixed_period=fixed_period,
                   settings=settings, **out)
@@ -795,3 +751,70 @@ def find_periodic_orbit(
                 max_impacts=max_impacts, max_solver_steps=max_solver_steps, adjoint=adjoint,
             )
     return orbit
+
+
+def _check_arguments(scene, x_guess, period, fix, max_steps, num_impacts, adjoint):
+    """`find_periodic_orbit`'s argument checks (those that need concrete values only where
+    the values are concrete)."""
+    if not isinstance(scene, Scene):
+        raise TypeError(f"scene must be a grazejax.Scene, got {type(scene).__name__}")
+    if x_guess.ndim != 1:
+        raise ValueError(f"x0 must be a state vector of shape (n,), got shape {x_guess.shape}")
+    n = x_guess.shape[0]
+    if fix is not None and not (isinstance(fix, (int, np.integer)) and 0 <= fix < n):
+        raise ValueError(f"fix must be a coordinate index in [0, {n}), got {fix!r}")
+    if not isinstance(max_steps, (int, np.integer)) or max_steps < 1:
+        raise ValueError(f"max_steps must be a positive integer, got {max_steps!r}")
+    if num_impacts is not None and (not isinstance(num_impacts, (int, np.integer)) or num_impacts < 0):
+        raise ValueError(f"num_impacts must be a non-negative integer, got {num_impacts!r}")
+    if is_concrete(period) and not (np.isfinite(float(period)) and float(period) > 0):
+        raise ValueError(f"period must be a positive finite number, got {float(period)}")
+    if is_concrete(x_guess) and not np.all(np.isfinite(np.asarray(x_guess))):
+        raise ValueError(f"x0 contains NaN or inf: {np.asarray(x_guess)}")
+
+    if not loop_kinds(adjoint).forward:
+        raise ValueError(
+            "find_periodic_orbit: Newton's method linearises the period map in forward mode, "
+            "which adjoint=diffrax.RecursiveCheckpointAdjoint() does not support; pass "
+            "adjoint=diffrax.DirectAdjoint() to differentiate the orbit with jax.grad"
+        )
+
+
+def _impact_start(pmap, x_guess, t0, period, args, start_at_impact, num_impacts):
+    """`(start_at_impact, num_impacts)`, detected from the guess trajectory where not given
+    (x0 on a surface that the guess meets again near t0 + T)."""
+    if start_at_impact is None or (start_at_impact and num_impacts is None):
+        if not is_concrete(x_guess, period, args, t0):
+            raise ValueError(
+                "inside jit/vmap/jacfwd (traced x0, period, args or t0) pass "
+                "start_at_impact (and num_impacts when True): they select the compiled "
+                "period map, and detecting them needs a concrete guess"
+            )
+        detected_start, detected_k = _detect_start(pmap, x_guess, float(t0), float(period), args)
+        if start_at_impact is None:
+            start_at_impact = detected_start
+        if num_impacts is None and start_at_impact:
+            num_impacts = detected_k if detected_start else None
+        if start_at_impact and not num_impacts:
+            raise ValueError(
+                "start_at_impact=True but the guess trajectory has no impact near t0 + T: "
+                "pass num_impacts"
+            )
+    return start_at_impact, num_impacts
+
+
+def _settings_used(solver, rtol, atol, root_finder, newton_tol, scale, max_steps,
+                   max_solver_steps, max_impacts) -> SolverSettings:
+    """The [`grazejax.SolverSettings`][] of a solve: a user's root finder reports its own
+    tolerances (NaN where it has none), the default ones are scaled to the orbit."""
+    if root_finder is not None:
+        newton_rtol, newton_atol = (_host_float(getattr(root_finder, name, math.nan))
+                                    for name in ("rtol", "atol"))
+    else:
+        newton_rtol, newton_atol = map(float, newton_tolerances(newton_tol, scale))
+    return SolverSettings(
+        solver=solver_name(solver), rtol=float(rtol), atol=atol,
+        newton_rtol=newton_rtol, newton_atol=newton_atol,
+        max_steps=int(max_steps),
+        max_solver_steps=int(max_solver_steps), max_impacts=int(max_impacts), state_scale=scale,
+    )
