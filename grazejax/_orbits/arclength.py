@@ -1,17 +1,23 @@
-r"""Pseudo-arclength continuation of a curve F(Y) = 0, F: ℝ^{k+1} → ℝ^k, for any defining
-system (grazing orbits in `grazing_curve.py`, bifurcation points in
-`bifurcation_curve.py`), and the corrector's pieces that `continue_orbit` shares with them
-(`bordered_newton`, `next_tangent`, `continuation_settings`).
+r"""Pseudo-arclength continuation of a curve F(Y) = 0, F: ℝ^{k+1} → ℝ^k: the one engine
+under `continue_orbit` (periodic orbits, across grazing), `continue_grazing` (grazing
+orbits) and `continue_bifurcation` (bifurcation points), and the corrector's pieces they
+share (`bordered_newton`, `next_tangent`, `continuation_settings`).
 
-The engine knows nothing of orbits: a front end gives it `correct(Y_pred, tangent, origin)`,
-Newton's method on [F(Y); tangent·(Y − Y_pred)] = 0 followed by the new point's tangent and
-diagnostics (`CurvePoint`, or None where it fails), and the engine predicts, accepts,
-adapts the step and stops (a [`grazejax.ContinuationStatus`][]):
+The engine knows nothing of orbits. A front end gives it `correct`, Newton's method on
+[F(Y); tangent·(Y − Y_pred)] = 0 followed by the new point's tangent and diagnostics (a
+point with `Y`, `tangent` and Newton's `steps`, or None where it fails), and the engine
+predicts, accepts, adapts the step and stops (a [`grazejax.ContinuationStatus`][]):
 
 - at `stop` on the coordinate `index` of Y, exactly (a last correction whose bordered row
   fixes that coordinate);
 - where `in_range(Y)` fails (`LEFT_RANGE`), the step falls under `ds_min`
   (`STEP_TOO_SMALL`) or after `max_points` (`MAX_POINTS`).
+
+A front end whose curve has events of its own (`continue_orbit`: the impact count changes
+at grazing, a family ends, special points between points) answers the engine's hooks
+(`Front`): whether a corrected point is accepted, what it sees on an accepted point, what
+to do when a step is refused or the step is at its smallest. A hook may move the run
+(`Run`: points, current point, step) to another family and let the engine go on.
 """
 
 from __future__ import annotations
@@ -64,42 +70,95 @@ def grown_step(h, newton_steps, ds_max):
     return min(1.5 * h, ds_max) if int(newton_steps) <= 3 else h
 
 
-def trace(correct: Callable, first: CurvePoint, *, index: int, stop: float, direction: float,
-          steps: Steps, in_range: Callable = lambda Y: True, progress=None):
+@dataclasses.dataclass
+class Run:
+    """The engine's state, which a front end's hooks may change: the `points` so far, the
+    `current` point (the predictor's origin) and the step `h`."""
+
+    points: list
+    current: Any
+    h: float
+
+
+# A hook's answer for "nothing of mine here: do what the engine does".
+FALL_THROUGH = object()
+
+
+class Front:
+    """A front end of the engine: `correct` plus hooks, whose defaults here are those of a
+    curve without events of its own (`Front(correct)`)."""
+
+    def __init__(self, correct: Callable | None = None):
+        self._correct = correct
+
+    def correct(self, run: Run, Y_pred, tangent):
+        """The corrected point from the prediction (None where Newton fails)."""
+        return self._correct(Y_pred, tangent, np.asarray(run.current.Y))
+
+    def land(self, run: Run, guess, e_stop):
+        """The last point, on `stop` exactly (`e_stop`: the bordered row fixing `index`), or
+        None to take an ordinary step instead."""
+        return self.correct(run, guess, e_stop)
+
+    def accepts(self, run: Run, new, Y_pred, tangent) -> bool:
+        """Whether the corrected point continues the curve."""
+        return new is not None and step_accepted(new.Y, new.tangent, Y_pred, tangent, run.h)
+
+    def accepted(self, run: Run, new) -> None:
+        """Called on an accepted point before the engine appends it."""
+
+    def rejected(self, run: Run, tangent):
+        """A refused step: a status to stop with, None to go on (the run moved), or
+        FALL_THROUGH (the engine halves the step)."""
+        return FALL_THROUGH
+
+    def stuck(self, run: Run, tangent):
+        """The step fell under `ds_min`: a status, or None to go on (the run moved)."""
+        return ContinuationStatus.STEP_TOO_SMALL
+
+
+def trace(front: Front, first, *, index: int, stop: float, direction: float, steps: Steps,
+          in_range: Callable = lambda Y: True, progress=None):
     """Follow the curve from `first` (its tangent pointing the way to go) until the
     coordinate `index` of Y reaches `stop` (`direction`: the sign of stop − start):
     `(points, status)`. `progress(point, h)` is called on every accepted point."""
-    points, current, h = [first], first, float(steps.ds)
+    run = Run([first], first, float(steps.ds))
     e_stop = np.zeros(np.shape(first.Y))
     e_stop[index] = 1.0
-    while len(points) < steps.max_points:
-        Y = np.asarray(current.Y)
+    while len(run.points) < steps.max_points:
+        Y = np.asarray(run.current.Y)
         if (Y[index] - stop) * direction >= 0:
-            return points, ContinuationStatus.REACHED_STOP
+            return run.points, ContinuationStatus.REACHED_STOP
         if not in_range(Y):
-            return points, ContinuationStatus.LEFT_RANGE
-        tangent = np.asarray(current.tangent)
-        Y_pred = Y + h * tangent
+            return run.points, ContinuationStatus.LEFT_RANGE
+        tangent = np.asarray(run.current.tangent)
+        Y_pred = Y + run.h * tangent
         if (Y_pred[index] - stop) * direction > 0 and tangent[index] * direction > 0:
             # Land on `stop` exactly: the bordered row fixes that coordinate.
-            guess = Y + (stop - Y[index]) / (Y_pred[index] - Y[index]) * h * tangent
+            guess = Y + (stop - Y[index]) / (Y_pred[index] - Y[index]) * run.h * tangent
             guess[index] = stop
-            last = correct(guess, e_stop, Y)
+            last = front.land(run, guess, e_stop)
             if last is not None:
-                points.append(last)
-                return points, ContinuationStatus.REACHED_STOP
-        new = correct(Y_pred, tangent, Y)
-        if new is not None and step_accepted(new.Y, new.tangent, Y_pred, tangent, h):
-            points.append(new)
-            current = new
-            h = grown_step(h, new.steps, steps.ds_max)
+                run.points.append(last)
+                return run.points, ContinuationStatus.REACHED_STOP
+        new = front.correct(run, Y_pred, tangent)
+        if front.accepts(run, new, Y_pred, tangent):
+            front.accepted(run, new)
+            run.points.append(new)
+            run.current = new
+            run.h = grown_step(run.h, new.steps, steps.ds_max)
             if progress is not None:
-                progress(new, h)
+                progress(new, run.h)
             continue
-        h *= 0.5
-        if h < steps.ds_min:
-            return points, ContinuationStatus.STEP_TOO_SMALL
-    return points, ContinuationStatus.MAX_POINTS
+        outcome = front.rejected(run, tangent)
+        if outcome is FALL_THROUGH:
+            run.h *= 0.5
+            if run.h >= steps.ds_min:
+                continue
+            outcome = front.stuck(run, tangent)
+        if outcome is not None:
+            return run.points, outcome
+    return run.points, ContinuationStatus.MAX_POINTS
 
 
 @contextlib.contextmanager

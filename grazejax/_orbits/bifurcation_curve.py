@@ -41,7 +41,15 @@ import numpy as np
 
 from .._scene import Scene
 from .._status import ContinuationStatus
-from .arclength import CurvePoint, Steps, bordered_newton, eigvals_descending, progress_bar, trace
+from .arclength import (
+    CurvePoint,
+    Front,
+    Steps,
+    bordered_newton,
+    eigvals_descending,
+    progress_bar,
+    trace,
+)
 from .bifurcation import DefiningSystem, defining_system
 from .period_map import newton_for, orbit_kernel, period_map_jacobian
 
@@ -324,7 +332,7 @@ def continue_bifurcation(
             first = first._replace(tangent=second.tangent)
         with progress_bar(progress, steps.max_points, "grazejax.continue_bifurcation",
                           ("mu", -2), ("nu", -1)) as report:
-            points, status = trace(correct, first, index=-1, stop=float(nu_stop),
+            points, status = trace(Front(correct), first, index=-1, stop=float(nu_stop),
                                    direction=direction, steps=steps, progress=report,
                                    in_range=lambda Y: mu_range[0] <= Y[-2] <= mu_range[1])
     return _curve(kind, fixed, points, status, n, len(head))

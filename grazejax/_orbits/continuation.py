@@ -39,12 +39,16 @@ import numpy as np
 from .._scene import Scene
 from .._status import ContinuationStatus
 from .arclength import (
+    FALL_THROUGH,
+    Front,
+    Run,
+    Steps,
     bordered_newton,
     continuation_settings,
     eigvals_descending,
-    grown_step,
     next_tangent,
     step_accepted,
+    trace,
     write_text,
 )
 from .bifurcation import locate_bifurcation
@@ -506,12 +510,13 @@ def continue_orbit(
     if not usable or not np.all(np.isfinite(x_s)):
         return _empty_branch(n, ContinuationStatus.START_FAILED, settings)
     tracer = _Tracer(scene=scene, fam=fam, args_of=args_of, kw=kw, fixed=fixed, n=n,
-                     t0=jnp.asarray(t_s), T_fixed=T_fixed, ts_unit=ts_unit, mu_stop=mu_stop,
-                     direction=direction, ds=float(ds), ds_min=float(ds_min),
-                     ds_max=float(ds_max), max_points=max_points, locate_tol=locate_tol,
+                     t0=jnp.asarray(t_s), T_fixed=T_fixed, ts_unit=ts_unit, ds=float(ds),
+                     ds_min=float(ds_min), locate_tol=locate_tol,
                      switch_branches=switch_branches, newton_tol=float(newton_tol))
-    if not tracer.begin(x_s, float(orbit.period), mu_start):
+    first = tracer.begin(x_s, float(orbit.period), mu_start)
+    if first is None:
         return _empty_branch(n, ContinuationStatus.START_FAILED, settings)
+    first = first._replace(tangent=direction * first.tangent)
     bar = None
     if progress:
         from tqdm.auto import tqdm
@@ -520,22 +525,28 @@ def continue_orbit(
         bar.update(1)
     tracer.bar = bar
     try:
-        status = tracer.run()
+        points, status = trace(
+            tracer, first, index=-1, stop=mu_stop, direction=direction,
+            steps=Steps(float(ds), float(ds_min), float(ds_max), max_points),
+            progress=tracer.progress,
+        )
     finally:
         if bar is not None:
             bar.close()
-    return _branch(tracer.points, tracer.grazing, status, n, float(t_s), settings,
+    return _branch(points, tracer.grazing, status, n, float(t_s), settings,
                    tuple(tracer.special))
 
 
 @dataclasses.dataclass(eq=False)
-class _Tracer:
-    """The state of one `continue_orbit` run and its steps (mutable, host side).
+class _Tracer(Front):
+    """`continue_orbit`'s front end of the arclength engine (host side, mutable).
 
-    Each `_step` is one predictor-corrector attempt: it lands on `mu_stop`, accepts a
-    point (crossing a grazing point by persistence), approaches grazing along an
-    impacting family, shrinks the step, or handles the end of the family (branch
-    switching); it returns a status to stop with, or None to go on.
+    The engine predicts, corrects, lands on `mu_stop` and adapts the step; this front end
+    adds the events of a family of periodic orbits: special points between accepted points
+    (solved by their defining systems), a change of the impact count (a grazing point,
+    crossed by persistence or ending the family), an impacting family that the corrector
+    cannot follow (approached along its impact speed), and branch switching at the end of
+    a family (which moves the engine's run to the other family).
     """
 
     scene: Scene
@@ -547,22 +558,16 @@ class _Tracer:
     t0: Any
     T_fixed: Any
     ts_unit: Any
-    mu_stop: float
-    direction: float
     ds: float
     ds_min: float
-    ds_max: float
-    max_points: int
     locate_tol: float
     switch_branches: bool
     newton_tol: float = 1e-8
     max_refine_steps: int = 30
     bar: Any = None
     j: int = -1
-    h: float = 0.0
     approach_tried: int = -1
-    current: dict = dataclasses.field(default_factory=dict)
-    points: list = dataclasses.field(default_factory=list)
+    boundary: Any = None  # where a corrected point found the family's end (`accepts`)
     grazing: list = dataclasses.field(default_factory=list)
     special: list = dataclasses.field(default_factory=list)
 
@@ -580,8 +585,14 @@ class _Tracer:
         Y_pred = point.Y + step * tangent_
         return _correct(self.fam, Y_pred, tangent_, self.t0, e, cc, self.T_fixed, self.ts_unit)
 
-    def _natural(self):
-        return _natural_at(self.fam, self.current, self.phase_of, self.j, self.fixed, self.t0,
+    def _phase(self, run: Run):
+        """The phase condition through the current point (its index j kept while usable)."""
+        e_j, c, self.j = self.phase_of(np.asarray(_x_of(run.current.Y, self.fixed)),
+                                       run.current.f_x, self.j)
+        return e_j, c
+
+    def _natural(self, run: Run):
+        return _natural_at(self.fam, run.current, self.phase_of, self.j, self.fixed, self.t0,
                            self.T_fixed, self.ts_unit)
 
     def _tick(self, count=1, **postfix):
@@ -590,11 +601,77 @@ class _Tracer:
             if postfix:
                 self.bar.set_postfix(**postfix)
 
-    def _add_special(self, new):
-        before = self.points[-2] if len(self.points) > 1 else None
-        found = _special_points(self._natural(), before, self.current, new, self.fixed,
+    def progress(self, new, h):
+        self._tick(mu=f"{float(new.Y[-1]):.5g}", impacts=int(new.num_impacts), ds=f"{h:.2g}")
+
+    def begin(self, x0, period: float, mu_start):
+        """The first point at μ = mu_start exactly (the bordered row fixes μ), corrected
+        from the start (t0, x0) on the orbit, its tangent oriented towards mu_stop
+        (`direction`); None if the corrector fails there."""
+        x0 = np.asarray(x0, float)
+        Y = jnp.asarray(np.concatenate([[] if self.fixed else [period], x0, [mu_start]]))
+        f0 = np.asarray(self.scene.vector_field(self.t0, jnp.asarray(x0), self.args_of(mu_start)))
+        e_j, c, self.j = self.phase_of(x0, f0)
+        e_mu = jnp.zeros(Y.shape[0]).at[-1].set(1.0)
+        first = _correct(self.fam, Y, e_mu, self.t0, e_j, c, self.T_fixed, self.ts_unit)
+        if not bool(first.good):
+            return None
+        return _record(first)
+
+    # ---- the engine's hooks ----
+
+    def correct(self, run: Run, Y_pred, tangent):
+        e_j, c = self._phase(run)
+        return _record(_correct(self.fam, Y_pred, tangent, self.t0, e_j, c, self.T_fixed,
+                                self.ts_unit))
+
+    def land(self, run: Run, guess, e_stop):
+        """The corrector at μ = mu_stop from the interpolated guess, kept if it stays on the
+        same family (impact count)."""
+        e_j, c = self._phase(run)
+        last = _natural(self.fam, guess, self.t0, e_j, c, self.T_fixed, self.ts_unit)
+        if not (bool(last.good) and int(last.num_impacts) == int(run.current.num_impacts)):
+            return None
+        self._add_special(run, last)
+        self._tick()
+        return _record(last)
+
+    def accepts(self, run: Run, new, Y_pred, tangent) -> bool:
+        self.boundary = None
+        accepted = bool(new.good) and step_accepted(new.Y, new.tangent, Y_pred, tangent, run.h)
+        k_now = int(run.current.num_impacts)
+        if accepted and int(new.num_impacts) != k_now:
+            accepted, self.boundary = self._cross_grazing(run, new, tangent, k_now)
+        return accepted
+
+    def accepted(self, run: Run, new) -> None:
+        if int(new.num_impacts) == int(run.current.num_impacts):
+            self._add_special(run, new)
+
+    def rejected(self, run: Run, tangent):
+        k_now = int(run.current.num_impacts)
+        if self.boundary is not None:
+            return self._family_ends(run, self.boundary, tangent, k_now)
+        if k_now > 0 and self.approach_tried != len(run.points):
+            return self._approach(run, tangent, k_now)
+        return FALL_THROUGH
+
+    def stuck(self, run: Run, tangent):
+        # The corrector fails at every step size: locate where the family ends (the last
+        # arclength at which it converges with the current impact count).
+        run.h = self.ds_min
+        k_now = int(run.current.num_impacts)
+        boundary, _ = _locate(self.correct_from, run.current, 2 * self.ds_min, tangent, k_now,
+                              self.locate_tol)
+        return self._family_ends(run, boundary, tangent, k_now)
+
+    # ---- the family's events ----
+
+    def _add_special(self, run: Run, new):
+        before = run.points[-2] if len(run.points) > 1 else None
+        found = _special_points(self._natural(run), before, run.current, new, self.fixed,
                                 self.locate_tol, float(self.t0))
-        mus = [float(np.asarray(p.Y)[-1]) for p in (before, self.current, new) if p is not None]
+        mus = [float(np.asarray(p.Y)[-1]) for p in (before, run.current, new) if p is not None]
         self.special.extend(self._solved(p, min(mus), max(mus)) for p in found)
 
     def _solved(self, special: SpecialPoint, lo: float, hi: float) -> SpecialPoint:
@@ -620,97 +697,20 @@ class _Tracer:
             multipliers=np.asarray(point.multipliers), solved=True, fixed_period=self.fixed,
         )
 
-    def _take_other(self, located, other, kind):
+    def _take_other(self, run: Run, located, other, kind):
         """Record the grazing point and go on along the other family from `other`."""
         self.grazing.append(dataclasses.replace(
             located, impacts_after=int(other.num_impacts), kind=kind))
-        self.points.append(_record(other))
-        self.current = other
-        self.h = self.ds
+        run.points.append(_record(other))
+        run.current = other
+        run.h = self.ds
 
-    def begin(self, x0, period: float, mu_start) -> bool:
-        """The first point at μ = mu_start exactly (the bordered row fixes μ), corrected
-        from the start (t0, x0) on the orbit; its tangent comes out oriented towards
-        increasing μ, then towards mu_stop."""
-        x0 = np.asarray(x0, float)
-        Y = jnp.asarray(np.concatenate([[] if self.fixed else [period], x0, [mu_start]]))
-        f0 = np.asarray(self.scene.vector_field(self.t0, jnp.asarray(x0), self.args_of(mu_start)))
-        e_j, c, self.j = self.phase_of(x0, f0)
-        e_mu = jnp.zeros(Y.shape[0]).at[-1].set(1.0)
-        first = _correct(self.fam, Y, e_mu, self.t0, e_j, c, self.T_fixed, self.ts_unit)
-        if not bool(first.good):
-            return False
-        first = first._replace(tangent=self.direction * first.tangent)
-        self.points, self.current, self.h = [_record(first)], first, self.ds
-        return True
-
-    def run(self) -> ContinuationStatus:
-        while len(self.points) < self.max_points:
-            status = self._step()
-            if status is not None:
-                return status
-        return ContinuationStatus.MAX_POINTS
-
-    def _step(self):
-        current, direction, h = self.current, self.direction, self.h
-        mu_now = float(current.Y[-1])
-        if (mu_now - self.mu_stop) * direction >= 0:
-            return ContinuationStatus.REACHED_STOP
-        e_j, c, self.j = self.phase_of(np.asarray(_x_of(current.Y, self.fixed)),
-                                       current.f_x, self.j)
-        tangent = current.tangent
-        if self._land_on_stop(mu_now, tangent, e_j, c):
-            return ContinuationStatus.REACHED_STOP
-        Y_pred = current.Y + h * tangent
-        new = _correct(self.fam, Y_pred, tangent, self.t0, e_j, c, self.T_fixed, self.ts_unit)
-        k_now = int(current.num_impacts)
-        accepted = bool(new.good) and step_accepted(new.Y, new.tangent, Y_pred,
-                                                        tangent, h)
-        boundary = None
-        if accepted and int(new.num_impacts) != k_now:
-            accepted, boundary = self._cross_grazing(new, tangent, k_now)
-        if accepted:
-            self._accept(new)
-            return None
-        if boundary is None and k_now > 0 and self.approach_tried != len(self.points):
-            outcome = self._approach(tangent, k_now)
-            if outcome is not _FALL_THROUGH:
-                return outcome
-        if boundary is None:
-            self.h *= 0.5
-            if self.h >= self.ds_min:
-                return None
-            self.h = self.ds_min
-            # The corrector fails at every step size: locate where the family ends (the
-            # last arclength at which it converges with k_now impacts).
-            boundary, _ = _locate(self.correct_from, current, 2 * self.ds_min, tangent, k_now,
-                                  self.locate_tol)
-        return self._family_ends(boundary, tangent, k_now)
-
-    def _land_on_stop(self, mu_now, tangent, e_j, c) -> bool:
-        """If the step would pass mu_stop, land on it exactly: a corrector at fixed μ from
-        the interpolated guess (True if that worked on the same family)."""
-        current, h = self.current, self.h
-        mu_pred = mu_now + h * float(tangent[-1])
-        if not ((mu_pred - self.mu_stop) * self.direction > 0
-                and float(tangent[-1]) * self.direction > 0):
-            return False
-        frac = (self.mu_stop - mu_now) / (mu_pred - mu_now)
-        guess = (current.Y + frac * h * tangent).at[-1].set(self.mu_stop)
-        last = _natural(self.fam, guess, self.t0, e_j, c, self.T_fixed, self.ts_unit)
-        if not (bool(last.good) and int(last.num_impacts) == int(current.num_impacts)):
-            return False
-        self._add_special(last)
-        self.points.append(_record(last))
-        self._tick()
-        return True
-
-    def _cross_grazing(self, new, tangent, k_now):
+    def _cross_grazing(self, run: Run, new, tangent, k_now):
         """The impact count changed: bisect along the arclength for the grazing point.
         Returns (accepted, boundary)."""
-        current = self.current
+        current = run.current
         scale = 1.0 + float(jnp.max(jnp.abs(current.Y)))
-        graze, inner = _locate(self.correct_from, current, self.h, tangent, k_now,
+        graze, inner = _locate(self.correct_from, current, run.h, tangent, k_now,
                                self.locate_tol)
         gap = float(jnp.max(jnp.abs((inner.Y - graze.Y)[:-1])))
         if inner is not graze and gap <= 1e-2 * scale:
@@ -718,33 +718,24 @@ class _Tracer:
             self.grazing.append(_grazing_point(
                 self.scene, graze, self.args_of, self.fam, self.t0, self.T_fixed, self.fixed,
                 k_now, int(new.num_impacts), "persistence", self.kw))
-            self.points.extend([_record(graze), _record(inner)])
+            run.points.extend([_record(graze), _record(inner)])
             return True, None
         # The other count was found far away: the family ends at `graze`.
         return False, graze
 
-    def _accept(self, new):
-        if int(new.num_impacts) == int(self.current.num_impacts):
-            self._add_special(new)
-        self.points.append(_record(new))
-        self.current = new
-        self.h = grown_step(self.h, new.steps, self.ds_max)
-        self._tick(mu=f"{float(new.Y[-1]):.5g}", impacts=int(new.num_impacts),
-                   ds=f"{self.h:.2g}")
-
-    def _approach(self, tangent, k_now):
+    def _approach(self, run: Run, tangent, k_now):
         """An impacting family that the corrector cannot follow: if its impact speed is
         going to 0, approach grazing along the family parametrised by that speed. Returns
-        a status, None (go on, on the other family) or _FALL_THROUGH (nothing found)."""
-        current = self.current
-        self.approach_tried = len(self.points)
-        reach = 4 * self.h * abs(float(tangent[-1]))
-        found = _approach_grazing(self._natural(), self.points, k_now, self.locate_tol,
+        a status, None (go on, on the other family) or FALL_THROUGH (nothing found)."""
+        current = run.current
+        self.approach_tried = len(run.points)
+        reach = 4 * run.h * abs(float(tangent[-1]))
+        found = _approach_grazing(self._natural(run), run.points, k_now, self.locate_tol,
                                   reach=reach)
         if found is None:
-            return _FALL_THROUGH
+            return FALL_THROUGH
         mu_star, Y_star, new_points = found
-        self.points.extend(_record(pt) for pt in new_points)
+        run.points.extend(_record(pt) for pt in new_points)
         last = new_points[-1] if new_points else current
         end = last._replace(Y=jnp.asarray(Y_star))
         located = _grazing_point(self.scene, end, self.args_of, self.fam, self.t0, self.T_fixed,
@@ -762,19 +753,19 @@ class _Tracer:
         if switched is None:
             self.grazing.append(located)
             return ContinuationStatus.BRANCH_ENDS
-        self._take_other(located, *switched)
+        self._take_other(run, located, *switched)
         self._tick(len(new_points) + 1)
         return None
 
-    def _family_ends(self, boundary, tangent, k_now):
+    def _family_ends(self, run: Run, boundary, tangent, k_now):
         """The family ends at `boundary`: locate the grazing point there and switch to
         another family if one continues."""
-        current, fixed = self.current, self.fixed
+        current, fixed = run.current, self.fixed
         located = _grazing_point(self.scene, boundary, self.args_of, self.fam, self.t0,
                                  self.T_fixed, fixed, k_now, None, "end", self.kw)
         if not located.depth_is_small:
             return ContinuationStatus.STEP_TOO_SMALL
-        family = [pt for pt in self.points[-4:] if int(pt.num_impacts) == k_now]
+        family = [pt for pt in run.points[-4:] if int(pt.num_impacts) == k_now]
         if boundary is not current:
             family.append(boundary)
         located = _extrapolate_end(self.scene, located, family, self.args_of, self.fam,
@@ -789,11 +780,11 @@ class _Tracer:
                                          self.T_fixed, fixed, arrival, self.ds, self.phase_of,
                                          self.j, self.ts_unit)
         if boundary is not current:
-            self.points.append(_record(boundary))
+            run.points.append(_record(boundary))
         if switched is None:
             self.grazing.append(located.point)
             return ContinuationStatus.BRANCH_ENDS
-        self._take_other(located.point, *switched)
+        self._take_other(run, located.point, *switched)
         self._tick(2)
         return None
 
@@ -810,7 +801,6 @@ class _OneParameter(eqx.Module):
 
 
 # `_Tracer._approach` found nothing: go on with the step-size logic.
-_FALL_THROUGH = object()
 
 
 def _x_of(Y, fixed):

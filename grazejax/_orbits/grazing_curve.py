@@ -41,6 +41,7 @@ from .._status import ContinuationStatus
 from .._validate import is_concrete
 from .arclength import (
     CurvePoint,
+    Front,
     Steps,
     bordered_newton,
     continuation_settings,
@@ -356,7 +357,7 @@ def continue_grazing(
     first = first._replace(tangent=direction * first.tangent)
     with progress_bar(progress, steps.max_points, "grazejax.continue_grazing",
                       ("mu", -2), ("nu", -1)) as report:
-        points, status = trace(correct, first, index=-2, stop=mu_stop, direction=direction,
+        points, status = trace(Front(correct), first, index=-2, stop=mu_stop, direction=direction,
                                steps=steps, progress=report,
                                in_range=lambda Y: nu_range[0] <= Y[-1] <= nu_range[1])
     return _curve(points, surface, status, t_c, settings, fixed, n)
