@@ -39,7 +39,6 @@ from ._loop.policies import ZenoStick as ZenoStick
 from ._loop.policies import ZenoStop as ZenoStop
 from ._memory import retain_freed_memory as retain_freed_memory
 from ._orbits.bifurcation import BifurcationPoint as BifurcationPoint
-from ._orbits.bifurcation import locate_bifurcation as locate_bifurcation
 from ._orbits.bifurcation_curve import BifurcationCurve as BifurcationCurve
 from ._orbits.bifurcation_curve import Codim2Point as Codim2Point
 from ._orbits.bifurcation_curve import continue_bifurcation as continue_bifurcation
@@ -58,6 +57,7 @@ from ._orbits.floquet import floquet_multipliers as floquet_multipliers
 from ._orbits.grazing_curve import GrazingCurve as GrazingCurve
 from ._orbits.grazing_curve import continue_grazing as continue_grazing
 from ._orbits.grazing_curve import locate_grazing as locate_grazing
+from ._orbits.locate import locate_bifurcation as locate_bifurcation
 from ._orbits.period_map import SolverSettings as SolverSettings
 from ._orbits.periodic import Orbit as Orbit
 from ._orbits.periodic import OrbitStatus as OrbitStatus

@@ -175,3 +175,40 @@ def test_located_grazing_amplitude_and_its_derivatives(parameter):
                                rtol=1e-8)
     with pytest.raises(ValueError, match="nu_guess"):
         jax.jacfwd(lambda n: gj.locate_grazing(OSC, orbit, args_of, n, mu=3.0).mu)(nu)
+
+
+def test_grazing_is_a_kind_of_bifurcation_point_and_curve(forced_curve):
+    """`locate_bifurcation` and `continue_bifurcation` take grazing points too: with μ = σ
+    and ν = ω, the located point is σ_graz(ω), and the curve followed in ω is
+    `continue_grazing`'s (the fixture, in (ω, σ)) with the parameters' roles swapped."""
+    omega, sigma = 0.8, 3.0
+    args = _osc(omega, sigma)
+    orbit = gj.find_periodic_orbit(OSC, np.asarray(ex.linear_response(0.0, args)),
+                                   2 * math.pi / omega, args, fixed_period=True, **TOL)
+    contacts = gj.orbit_contacts(OSC, orbit, args, max_depth=math.inf, **TOL)
+    m = int(np.argmin(np.abs(np.asarray(contacts.depth))))
+    point = gj.GrazingPoint(mu=sigma, orbit=orbit, surface=int(contacts.surfaces[m]),
+                            time=float(contacts.times[m]), point=np.asarray(contacts.points[m]),
+                            depth=float(contacts.depth[m]), impacts_before=0, impacts_after=1,
+                            kind="persistence")
+
+    def args_of(s, w):
+        return _osc(w, s)
+
+    def period_of(s, w):
+        return 2 * jnp.pi / w
+
+    located = gj.locate_bifurcation(OSC, point, args_of, omega, period_of=period_of, **TOL)
+    assert located.kind == "grazing" and located.message == "SUCCESS"
+    assert abs(float(located.mu) - _amplitude(omega)) < 1e-9
+    direct = gj.locate_grazing(OSC, point, args_of, omega, period_of=period_of,
+                               newton_tol=1e-9, **TOL)
+    assert float(located.mu) == float(direct.mu)
+
+    curve = gj.continue_bifurcation(OSC, orbit, args_of, sigma, omega, 0.6, kind="grazing",
+                                    period_of=period_of, progress=False, newton_tol=1e-10,
+                                    max_newton_steps=10, **TOL)
+    assert isinstance(curve, gj.GrazingCurve) and curve.status == forced_curve.status
+    np.testing.assert_array_equal(curve.nu, forced_curve.mu)
+    np.testing.assert_array_equal(curve.mu, forced_curve.nu)
+    np.testing.assert_array_equal(curve.x0, forced_curve.x0)

@@ -2,10 +2,12 @@
 
 Each module calls only those below it, and only the period map calls `simulate`:
 
-- `continuation` (`continue_orbit`), `bifurcation_curve` (`continue_bifurcation`),
-  `grazing_curve` (`continue_grazing`, `locate_grazing`): the front ends;
+- `bifurcation_curve` (`continue_bifurcation`, every kind), `locate`
+  (`locate_bifurcation`, every kind), `grazing_curve` (`continue_grazing`,
+  `locate_grazing`), `continuation` (`continue_orbit`): the front ends, each of the first
+  two passing a grazing point to the grazing one;
 - `bifurcation`: the defining systems of fold, period-doubling and Neimark–Sacker points,
-  solved by Newton (`locate_bifurcation`);
+  solved by Newton (`locate_special`);
 - `arclength`: the one pseudo-arclength engine and its corrector;
 - `contacts`, `floquet`: what an orbit meets and its multipliers from per-impact factors;
 - `periodic`: the periodic-orbit solve (`find_periodic_orbit`, `Orbit`);

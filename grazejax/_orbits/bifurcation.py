@@ -158,7 +158,7 @@ class DefiningSystem(eqx.Module):
         return jnp.where(ok, jnp.concatenate(rows), jnp.nan)
 
 
-def locate_bifurcation(
+def locate_special(
     scene: Scene,
     point,
     args_of,
@@ -177,34 +177,8 @@ def locate_bifurcation(
     max_solver_steps: int = 50_000,
     adjoint=None,
 ) -> BifurcationPoint:
-    r"""Solve a bifurcation point of periodic orbits by its defining system, at ν.
-
-    **Arguments:**
-
-    - `scene`: a [`grazejax.Scene`][].
-    - `point`: the guess: a [`grazejax.SpecialPoint`][] from
-      [`grazejax.continue_orbit`][], or any object with `mu`, `x0`, `t0`, `period` and
-      (unless `kind` is given) `kind`.
-    - `args_of(mu, nu) -> args`: the scene's parameters at (μ, ν).
-    - `nu`: the second parameter (may be traced: the result is differentiable in it).
-    - `kind`: `"period-doubling"`, `"fold"` or `"neimark-sacker"` (default `point.kind`).
-    - `fixed_period`: a forced orbit of period `period_of(mu, nu)` (default `point.period`
-      for every μ, ν), solved for x0 and μ; `False`: an autonomous orbit, solved for its
-      period, x0 and μ with x_j held at the guess's value (`fix`: j; default the j with the
-      largest |f_j(x0)|).
-    - `rtol`, `atol`, `solver`, `max_impacts`, `max_solver_steps`: passed to
-      [`grazejax.simulate`][] (`atol=None`: `1e-2 · rtol` times the orbit's size).
-    - `newton_tol`, `max_steps`: Newton's relative tolerance and iterations.
-    - `adjoint`: `simulate`'s for Newton's runs: the default (`diffrax.ForwardMode()`)
-      lets `jax.jacfwd` differentiate the point, `diffrax.DirectAdjoint()` `jax.grad` too.
-
-    **Returns:** a [`grazejax.BifurcationPoint`][]; failure is a status, never an
-    exception inside `jit`.
-
-    The orbit starts away from impacts (x0 is not a post-impact state): take `point.t0`
-    between impacts, as [`grazejax.continue_orbit`][]'s points are. A grazing point is
-    solved by [`grazejax.locate_grazing`][].
-    """
+    """A period-doubling, fold or Neimark–Sacker point solved by its defining system at ν
+    ([`grazejax.locate_bifurcation`][] of those kinds: its arguments)."""
     kind = getattr(point, "kind", None) if kind is None else kind
     if not loop_kinds(adjoint).forward:
         raise ValueError(

@@ -28,6 +28,7 @@ the two points around it (`Codim2Point.mu`, `.nu`), not solved.
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import math
 from collections.abc import Callable
@@ -51,6 +52,8 @@ from .arclength import (
     trace,
 )
 from .bifurcation import DefiningSystem, defining_system
+from .grazing_curve import GrazingCurve, continue_grazing
+from .locate import is_grazing
 from .period_map import newton_for, orbit_kernel, period_map_jacobian
 
 
@@ -252,7 +255,8 @@ def continue_bifurcation(
     newton_tol: float = 1e-9,
     max_newton_steps: int = 12,
 ) -> BifurcationCurve:
-    r"""Follow a period-doubling, fold or Neimark–Sacker point in two parameters (μ, ν).
+    r"""Follow a period-doubling, fold, Neimark–Sacker or grazing point in two parameters
+    (μ, ν): from ν = `nu_start` to `nu_stop`, μ free.
 
     **Arguments:**
 
@@ -266,7 +270,7 @@ def continue_bifurcation(
     - `mu_start`, `nu_start`: the parameters at `point` (`mu_start` is the guess of μ).
     - `nu_stop`: the curve is followed from `nu_start` towards `nu_stop` (the first step
       moves ν that way) and ends there exactly, unless it stops earlier.
-    - `kind`: default `point.kind`.
+    - `kind`: default `point.kind` (`"grazing"` for a [`grazejax.GrazingPoint`][]).
     - `fixed_period`: forced orbits, of period `period_of(mu, nu)` (default: the point's
       period, fixed); `False`: autonomous ones (phase condition on x_j, `fix` = j as in
       [`grazejax.locate_bifurcation`][]). Default: `point.fixed_period`, else True.
@@ -275,6 +279,13 @@ def continue_bifurcation(
       arclength steps in (x0, μ, ν) (and T), as in [`grazejax.continue_grazing`][].
     - `rtol`, `atol`, `solver`: for [`grazejax.simulate`][] (`atol=None`: scaled to the
       orbit's size); `newton_tol`, `max_newton_steps`: the corrector.
+
+    A grazing point (a [`grazejax.GrazingPoint`][], or `kind="grazing"` with an
+    [`grazejax.Orbit`][] near grazing as `point`) is followed by
+    [`grazejax.continue_grazing`][], which continues in its first parameter: here it is
+    given (ν, μ) ↦ `args_of(μ, ν)` and returns its [`grazejax.GrazingCurve`][] with `mu`
+    and `nu` as here (`mu_range` bounds μ; `fixed_period` and `fix` are not used: the
+    point's orbit says whether it is forced).
 
     **Returns:** a [`grazejax.BifurcationCurve`][], with the codimension-two points met
     in `codim2`.
@@ -300,13 +311,19 @@ def continue_bifurcation(
     print(curve.codim2)   # the 1:2 resonance near (Γ, e) = (1, 1)
     ```
     """
-    kind = getattr(point, "kind", None) if kind is None else kind
     if not isinstance(scene, Scene):
         raise TypeError(f"scene must be a grazejax.Scene, got {type(scene).__name__}")
     if not callable(args_of):
         raise TypeError("args_of must be a function (mu, nu) -> args")
     if nu_start == nu_stop:
         raise ValueError("nu_start == nu_stop: nothing to continue")
+    if is_grazing(point, kind):
+        return _grazing_case(scene, point, args_of, mu_start, nu_start, nu_stop,
+                             period_of=period_of, mu_range=mu_range, ds=ds, ds_min=ds_min,
+                             ds_max=ds_max, max_points=max_points, progress=progress,
+                             rtol=rtol, atol=atol, solver=solver, newton_tol=newton_tol,
+                             max_newton_steps=max_newton_steps)
+    kind = getattr(point, "kind", None) if kind is None else kind
     steps = Steps(float(ds), 1e-3 * float(ds) if ds_min is None else float(ds_min),
                   float(ds_max), int(max_points))
     fixed = bool(getattr(point, "fixed_period", True) if fixed_period is None else fixed_period)
@@ -336,6 +353,27 @@ def continue_bifurcation(
                                    direction=direction, steps=steps, progress=report,
                                    in_range=lambda Y: mu_range[0] <= Y[-2] <= mu_range[1])
     return _curve(kind, fixed, points, status, n, len(head))
+
+
+class _Swapped(eqx.Module):
+    """`fn` with its two parameters swapped, (ν, μ) ↦ fn(μ, ν). A Module: the same `fn`
+    gives equal wrappers, which share their compiled programs."""
+
+    fn: Callable = eqx.field(static=True)
+
+    def __call__(self, nu, mu):
+        return self.fn(mu, nu)
+
+
+def _grazing_case(scene, point, args_of, mu_start, nu_start, nu_stop, *, period_of,
+                  mu_range, **options) -> GrazingCurve:
+    """A grazing point followed in ν with μ free: `continue_grazing` with the parameters'
+    roles swapped (it continues in its first parameter), its curve swapped back."""
+    curve = continue_grazing(
+        scene, point, _Swapped(args_of), float(nu_start), float(mu_start), float(nu_stop),
+        nu_range=mu_range, period_of=None if period_of is None else _Swapped(period_of),
+        **options)
+    return dataclasses.replace(curve, mu=curve.nu, nu=curve.mu)
 
 
 def _curve(kind, fixed, points, status, n, head) -> BifurcationCurve:

@@ -51,7 +51,7 @@ from .arclength import (
     trace,
     write_text,
 )
-from .bifurcation import locate_bifurcation
+from .bifurcation import locate_special
 from .contacts import orbit_contacts
 from .period_map import (
     PeriodMap,
@@ -678,7 +678,7 @@ class _Tracer(Front):
         """`special` solved by its defining system, where Newton converges on this family
         (the same impact count, μ within [lo, hi] widened by its width); else as detected."""
         period_of = self.fam.period_of
-        point = locate_bifurcation(
+        point = locate_special(
             self.scene, special, _OneParameter(self.args_of), 0.0, kind=special.kind,
             fixed_period=self.fixed,
             period_of=None if period_of is None else _OneParameter(period_of),
@@ -791,7 +791,7 @@ class _Tracer(Front):
 
 class _OneParameter(eqx.Module):
     """`fn(mu)` as a function of (μ, ν) (ν unused), for the defining systems of
-    `locate_bifurcation`. A Module: the same `fn` gives equal systems, which share their
+    `locate_special`. A Module: the same `fn` gives equal systems, which share their
     compiled programs."""
 
     fn: Callable = eqx.field(static=True)
@@ -799,8 +799,6 @@ class _OneParameter(eqx.Module):
     def __call__(self, mu, nu):
         return self.fn(mu)
 
-
-# `_Tracer._approach` found nothing: go on with the step-size logic.
 
 
 def _x_of(Y, fixed):
