@@ -51,7 +51,6 @@ from ._orbits.continuation import GrazingPoint as GrazingPoint
 from ._orbits.continuation import SpecialPoint as SpecialPoint
 from ._orbits.continuation import continue_orbit as continue_orbit
 from ._orbits.continuation import period_doubled_orbit as period_doubled_orbit
-from ._orbits.continuation import plot_bifurcation_diagram as plot_bifurcation_diagram
 from ._orbits.floquet import Floquet as Floquet
 from ._orbits.floquet import floquet_multipliers as floquet_multipliers
 from ._orbits.grazing_curve import GrazingCurve as GrazingCurve
@@ -79,5 +78,6 @@ from ._status import ImpactKind as ImpactKind
 from ._status import Status as Status
 from ._sweep import sweep as sweep
 from ._vern9 import Vern9 as Vern9
+from .plot import plot_bifurcation_diagram as plot_bifurcation_diagram
 
 __version__ = "0.1.0"

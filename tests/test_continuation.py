@@ -7,11 +7,7 @@ import pytest
 
 import grazejax as gj
 from grazejax import examples as ex
-from grazejax._orbits.continuation import (
-    ContinuationStatus,
-    continue_orbit,
-    plot_bifurcation_diagram,
-)
+from grazejax._orbits.continuation import ContinuationStatus, continue_orbit
 from grazejax._orbits.periodic import OrbitStatus, find_periodic_orbit
 
 from .test_periodic import (  # shared scenes: shared compiled programs
@@ -63,7 +59,7 @@ def test_ex1dof_grazing_bifurcation_at_zero(tmp_path):
     np.testing.assert_allclose(branch.period[-1], float(last.period), atol=1e-8)
 
     path = tmp_path / "ex1dof-bifurcation.png"
-    plot_bifurcation_diagram(branch, path, coordinate=0, title="ex1dof")
+    gj.plot_bifurcation_diagram(branch, path, coordinate=0, title="ex1dof")
     assert path.exists() and path.stat().st_size > 10_000
 
 
@@ -300,7 +296,7 @@ def test_branch_export_and_labelled_diagram(tmp_path):
     data = json.loads(branch.to_json(tmp_path / "b.json"))
     assert data["special_points"][0]["label"] == "PD" and data["status"] == "REACHED_STOP"
     assert data["points"]["multipliers_re"][1][0] == -1.0
-    fig = plot_bifurcation_diagram(branch, tmp_path / "b.png")
+    fig = gj.plot_bifurcation_diagram(branch, tmp_path / "b.png")
     texts = [t.get_text() for t in fig.axes[0].texts]
     assert any(t.startswith("PD") for t in texts)
     labels = fig.axes[0].get_legend_handles_labels()[1]

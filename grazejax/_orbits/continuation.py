@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from typing import Any, NamedTuple
 
 import diffrax
@@ -1248,100 +1248,3 @@ def period_doubled_orbit(scene: Scene, point: SpecialPoint, args, *, epsilon: fl
 # --------------------------------------------------------------------------------------
 # Bifurcation diagram
 # --------------------------------------------------------------------------------------
-
-
-def plot_bifurcation_diagram(
-    branches: Branch | Sequence[Branch],
-    path=None,
-    *,
-    coordinate: int = 0,
-    measure: str = "max",
-    ax=None,
-    title: str | None = None,
-    mu_label: str = "μ",
-    dpi: int = 150,
-):
-    r"""Draw branches of periodic orbits: amplitude vs μ, stability, impacts per period.
-
-    **Arguments:**
-
-    - `branches`: one [`grazejax.Branch`][] or several.
-    - `path`: if given, the figure is saved there as a PNG.
-    - `coordinate`: which state coordinate measures the orbit.
-    - `measure`: `"max"` (largest value of the coordinate along the orbit), `"min"`, or
-      `"amplitude"` (max − min).
-    - `ax`: a Matplotlib `Axes` to draw on (default: a new figure).
-    - `title`, `mu_label`, `dpi`: labels and resolution.
-
-    Stable orbits ((A5) holds) are solid lines, unstable ones dashed; the colour and the
-    legend give the number of impacts per period; grazing points are black diamonds
-    labelled `G` with their kind (persistence, fold, end); special points are labelled
-    `PD` (period doubling, square), `LP` (fold, triangle), `NS` (Neimark–Sacker, circle).
-
-    **Returns:** the Matplotlib `Figure`.
-    """
-    import matplotlib
-
-    if ax is None and path is not None:
-        matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
-
-    if isinstance(branches, Branch):
-        branches = [branches]
-    if measure not in ("max", "min", "amplitude"):
-        raise ValueError(f"measure must be 'max', 'min' or 'amplitude', got {measure!r}")
-    if ax is None:
-        fig, ax = plt.subplots(figsize=(7.5, 4.8))
-    else:
-        fig = ax.figure
-    counts = sorted({int(k) for b in branches for k in np.asarray(b.num_impacts)})
-    cmap = plt.get_cmap("tab10")
-    colour = {k: cmap(i % 10) for i, k in enumerate(counts)}
-
-    def value(b, idx):
-        lo, hi = np.asarray(b.x_min)[idx, coordinate], np.asarray(b.x_max)[idx, coordinate]
-        return {"max": hi, "min": lo, "amplitude": hi - lo}[measure]
-
-    seen = set()
-    for b in branches:
-        mu = np.asarray(b.mu)
-        if len(mu) == 0:
-            continue
-        k = np.asarray(b.num_impacts)
-        stable = np.asarray(b.stable)
-        y = value(b, slice(None))
-        # One line per run of equal (impacts, stability).
-        start = 0
-        for i in range(1, len(mu) + 1):
-            if i < len(mu) and k[i] == k[start] and stable[i] == stable[start]:
-                continue
-            seg = slice(start, i + 1 if i < len(mu) and k[i] == k[start] else i)
-            label_key = (int(k[start]), bool(stable[start]))
-            label = None
-            if label_key not in seen:
-                seen.add(label_key)
-                label = f"{int(k[start])} impact(s)/period, {'stable' if stable[start] else 'unstable'}"
-            ax.plot(mu[seg], y[seg], "-" if stable[start] else "--", color=colour[int(k[start])],
-                    lw=1.8, label=label, marker="." if i - start < 3 else None)
-            start = i
-        for g in b.grazing:
-            idx = int(np.argmin(np.abs(mu - g.mu)))
-            ax.plot([g.mu], [y[idx]], "D", color="k", ms=6, zorder=5)
-            ax.annotate(f"G ({g.kind})\nμ = {g.mu:.6g}", (g.mu, y[idx]),
-                        textcoords="offset points", xytext=(6, -22), fontsize=8)
-        for p in b.special_points:
-            idx = int(np.argmin(np.abs(mu - p.mu)))
-            ax.plot([p.mu], [y[idx]], {"PD": "s", "LP": "^", "NS": "o"}[p.label], color="k",
-                    mfc="w", ms=7, zorder=6)
-            ax.annotate(f"{p.label}\nμ = {p.mu:.6g}", (p.mu, y[idx]),
-                        textcoords="offset points", xytext=(6, 8), fontsize=8)
-    ax.set_xlabel(mu_label)
-    ax.set_ylabel({"max": f"max x{coordinate + 1}", "min": f"min x{coordinate + 1}",
-                   "amplitude": f"amplitude of x{coordinate + 1}"}[measure])
-    if title:
-        ax.set_title(title, fontsize=10)
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8, loc="best")
-    if path is not None:
-        fig.savefig(path, dpi=dpi, bbox_inches="tight")
-    return fig
