@@ -417,7 +417,7 @@ def check_conditions(
         raise ValueError(f"samples must be an integer >= 10, got {samples!r}")
     if len(scene.surfaces) == 0:
         raise ValueError("the scene has no surfaces: nothing to check")
-    n = _state_size(scene, args)
+    n = _state_dimension(scene, args)
     box = np.array([[-2.0, 2.0]] * n) if box is None else np.asarray(box, float)
     if box.shape != (n, 2) or np.any(box[:, 1] <= box[:, 0]):
         raise ValueError(
@@ -447,7 +447,7 @@ def check_conditions(
     return ConditionReport(tuple(results), int(samples), box, (t_lo, t_hi))
 
 
-def _state_size(scene, args):
+def _state_dimension(scene, args):
     # The scene does not know n; find it from the vector field by trying small sizes.
     for n in range(1, 33):
         try:
@@ -798,16 +798,12 @@ _SAVES = 256
 _FAILED = (int(Status.NONFINITE), int(Status.MAX_STEPS), int(Status.STEP_SIZE_UNDERFLOW))
 
 
-def _identity_jump(t, x, args):
-    return x
-
-
 @eqx.filter_jit
 def _flights(scene: Scene, i: int, ts, xs, args, horizon):
     """Free flights from (t, x): forward until Γ_i is met (its time, status, saved states)
     and backward to the horizon (status, saved states). No jump is applied."""
     surface = scene.surfaces[i]
-    probe = Scene(scene.vector_field, [Surface(surface.phi, _identity_jump, where=surface.where)])
+    probe = Scene(scene.vector_field, [surface.probe()])
     free = Scene(scene.vector_field, [])
     fractions = jnp.linspace(0.0, 1.0, _SAVES + 1)[1:]
 

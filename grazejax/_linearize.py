@@ -59,7 +59,7 @@ from ._compiler import single_run_jit
 from ._flow import flight_kwargs, free_flow
 from ._geometry import boundary_tol, closed_piece, gap_rates, inverse_jump, on_piece
 from ._roots import safe_divide
-from ._scene import Scene, Surface
+from ._scene import Scene
 from ._simulate import simulate
 from ._solution import Solution
 from ._status import ImpactKind, Status
@@ -378,10 +378,6 @@ def _args_arrays(args):
         ),
         args,
     )
-
-
-def _identity_jump(t, x, args):
-    return x
 
 
 def _simulation_ok(status):
@@ -752,7 +748,7 @@ def _meet(scene: Scene, i: int, t, x, args, lookback: float, horizon, kw):
     # the first contact, with simulate's IFT tangent of the contact time.
     probe = Scene(
         scene.vector_field,
-        [Surface(phi=surface.phi, jump=_identity_jump, where=surface.where, name=surface.name)],
+        [surface.probe()],
     )
     if lookback > 0:
         # Search from t − lookback: the meeting may lie before t (a neighbour already past
@@ -995,13 +991,13 @@ class _Augmented(eqx.Module):
     vector_field: Any = eqx.field(static=True)
 
     def __call__(self, t, z, args):
-        n = _state_size(z.shape[0])
+        n = _variational_state_size(z.shape[0])
         x, U = z[:n], z[n : n + n * n].reshape(n, n)
         fx, A = self.vector_field(t, x, args), jax.jacfwd(self.vector_field, argnums=1)(t, x, args)
         return jnp.concatenate([fx, (A @ U).reshape(-1), jnp.trace(A)[None]])
 
 
-def _state_size(m: int) -> int:
+def _variational_state_size(m: int) -> int:
     # m = n + n² + 1
     n = int(round((-1 + math.sqrt(1 + 4 * (m - 1))) / 2))
     assert n + n * n + 1 == m

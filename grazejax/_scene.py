@@ -65,6 +65,17 @@ class Surface(eqx.Module):
                 raise TypeError(f"Surface.{field} must be callable or None")
 
 
+    def probe(self) -> "Surface":
+        """This piece with a jump that leaves the state as it is: a run with it reports
+        the contacts with Γ_i (their times and states) without changing the trajectory."""
+        return Surface(phi=self.phi, jump=identity_jump, where=self.where, name=self.name)
+
+
+def identity_jump(t, x, args):
+    """J(x) = x (module level, so probe surfaces compare equal and share programs)."""
+    return x
+
+
 class Scene(eqx.Module):
     r"""A discontinuous dynamical system x' = f(t, x), x → J_i(x) on Γ_i.
 
