@@ -44,7 +44,6 @@ the point: outside `jit` this raises a `ValueError` instead) or `SIMULATION_FAIL
 
 from __future__ import annotations
 
-import enum
 import math
 from typing import Any
 
@@ -62,7 +61,7 @@ from ._roots import safe_divide
 from ._scene import Scene
 from ._simulate import simulate
 from ._solution import Solution
-from ._status import ImpactKind, Status
+from ._status import ImpactKind, Status, StatusCode
 from ._validate import is_concrete
 
 # --------------------------------------------------------------------------------------
@@ -70,40 +69,27 @@ from ._validate import is_concrete
 # --------------------------------------------------------------------------------------
 
 
-class DerivativeStatus(enum.IntEnum):
+class DerivativeStatus(StatusCode):
     """How trustworthy a derivative is. Stored as an integer array in each result's `status`.
 
     Inside `jax.jit` / `jax.vmap` nothing raises: `DerivativeStatus(int(r.status))` reads it.
     """
 
-    OK = 0
+    OK = 0, "derivative of a run with transversal contacts only"
     """A derivative of a run whose contacts are all transversal (α, β)."""
-    GRAZING = 1
+    GRAZING = 1, "tangential contact (γ): derivative does not exist; (N2) value returned"
     """A contact is tangential (γ): the derivative does not exist there. The result holds
     the (N2) one-sided value (no jump); the (N1) side diverges like 1/(∇Φ·f)."""
-    NO_CONTACT = 2
+    NO_CONTACT = 2, "the flow does not meet the surface in the window (W = 0)"
     """The flow does not meet Γ_i within the search window: τ_i = inf, W_i = 0 and W_{ix} = 0
     (the paper's convention for (N2) neighbours)."""
-    SIMULATION_FAILED = 3
+    SIMULATION_FAILED = 3, "simulate did not reach t1 (see the solution's status)"
     """`simulate` ended with a status other than SUCCESS / MAX_IMPACTS (see `solution`)."""
-    UNDEFINED = 4
+    UNDEFINED = 4, "Φ, f or J (or a first derivative) is not finite at the point"
     """Φ_i, f or J_i (or their first derivatives) are not finite at the point."""
-    NONFINITE = 5
+    NONFINITE = 5, "the derivative is not finite"
     """The derivative itself came out non-finite."""
 
-    @property
-    def message(self) -> str:
-        return _MESSAGES[self]
-
-
-_MESSAGES = {
-    DerivativeStatus.OK: "derivative of a run with transversal contacts only",
-    DerivativeStatus.GRAZING: "tangential contact (γ): derivative does not exist; (N2) value returned",
-    DerivativeStatus.NO_CONTACT: "the flow does not meet the surface in the window (W = 0)",
-    DerivativeStatus.SIMULATION_FAILED: "simulate did not reach t1 (see the solution's status)",
-    DerivativeStatus.UNDEFINED: "Φ, f or J (or a first derivative) is not finite at the point",
-    DerivativeStatus.NONFINITE: "the derivative is not finite",
-}
 
 
 # --------------------------------------------------------------------------------------

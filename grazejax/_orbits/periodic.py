@@ -37,7 +37,6 @@ and given their true ones (second derivatives of the flow) only when differentia
 from __future__ import annotations
 
 import dataclasses
-import enum
 import functools
 import math
 
@@ -53,7 +52,7 @@ from jaxtyping import Array, Bool, Complex, Float, Int
 from .._adjoint import loop_kinds
 from .._geometry import FLOOR_ULPS, on_surface
 from .._scene import Scene
-from .._status import Status
+from .._status import Status, StatusCode
 from .._tangents import with_forward_tangents, without_derivative
 from .._validate import is_concrete
 from .period_map import (
@@ -77,75 +76,80 @@ from .period_map import (
 # --------------------------------------------------------------------------------------
 
 
-class OrbitStatus(enum.IntEnum):
+class OrbitStatus(StatusCode):
     """How a periodic-orbit solve ended. Stored as an integer array in `Orbit.status`.
 
     Inside `jax.jit` / `jax.vmap` nothing raises: `OrbitStatus(int(orbit.status))` reads it,
     and `.message` says what to try.
     """
 
-    SUCCESS = 0
+    SUCCESS = 0, "converged to an isolated periodic orbit"
     """Newton converged to a periodic orbit with a regular (A6) matrix."""
-    NO_CONVERGENCE = 1
+    NO_CONVERGENCE = (
+        1,
+        "Newton did not converge within max_steps: improve the guess (x0, period) or loosen "
+        "newton_tol (it cannot beat the simulation's accuracy)",
+    )
     """The root finder used `max_steps` iterations without meeting `newton_tol`."""
-    DIVERGED = 2
+    DIVERGED = (
+        2,
+        "Newton diverged (non-finite iterates): the guess is too far from a periodic orbit, or "
+        "the iteration left the region where the period map is defined",
+    )
     """The Newton iterates became non-finite (the guess is far from any orbit, or the
     iteration left the region where the period map is defined)."""
-    SIMULATION_FAILED = 3
+    SIMULATION_FAILED = (
+        3,
+        "simulate did not complete one period at the result (Zeno, max steps, non-finite state,"
+        " or more impacts than max_impacts)",
+    )
     """`simulate` did not complete the period at the result (Zeno, max steps, NaN, or more
     impacts than `max_impacts`)."""
-    SINGULAR = 4
+    SINGULAR = (
+        4,
+        "the (A6) matrix of the Poincaré criterion is singular or ill-conditioned: the orbit is"
+        " not isolated (fold, multiplier 1 of a forced system, or fixed_period=True on an "
+        "autonomous system)",
+    )
     """The (A6) matrix is singular or ill-conditioned: the orbit is not isolated (a fold,
     a multiplier at 1 of a forced system, or `fixed_period=True` on an autonomous system)."""
-    FIX_TANGENT = 5
+    FIX_TANGENT = (
+        5,
+        "the flow is tangent to the fixed coordinate x_fix = const (f_fix(x0) = 0): choose "
+        "another `fix` (default: the largest |f_j(x0)|)",
+    )
     """The flow is tangent to the fixed coordinate (f_j = 0): x_j = const is not a section."""
-    EQUILIBRIUM = 6
+    EQUILIBRIUM = 6, "the guess or the result is an equilibrium (f(x0) = 0), not a cycle"
     """The guess or the result is an equilibrium (f(x0) = 0), not a cycle: every T is a
     'period' and the phase condition is undefined."""
-    BAD_PERIOD = 7
+    BAD_PERIOD = 7, "the period came out zero or negative"
     """The period came out zero or negative."""
-    IMPACT_COUNT = 8
+    IMPACT_COUNT = 8, "the orbit found does not have num_impacts impacts per period"
     """The orbit found does not have the requested number of impacts per period."""
-    NO_END_IMPACT = 9
+    NO_END_IMPACT = (
+        9,
+        "x0 lies on a surface and was read as a post-impact state, but the impact that closes "
+        "the period was not reached",
+    )
     """x0 was read as a post-impact state, but the period-closing impact was not reached."""
-    LOOSE_ATOL = 10
+    LOOSE_ATOL = (
+        10,
+        "atol is larger than 10·rtol times the orbit's size: the simulation controls its error "
+        "in absolute terms only, so the orbit and its multipliers are not accurate to rtol; "
+        "pass atol=None (scaled to the orbit) or a smaller atol",
+    )
     """Newton converged, but the simulation's `atol` exceeds 10 × `rtol` × the orbit's size:
     the period map (and so the orbit and its multipliers) is only as accurate as
     atol / size, not `rtol`. Pass `atol=None` (scaled to the orbit) or a smaller `atol`."""
-    NOT_DOUBLED = 11
+    NOT_DOUBLED = (
+        11,
+        "every start converged to the period-1 orbit run twice: no period-doubled orbit near "
+        "the flip point at these args (try the other side of the flip point, or args closer to "
+        "it)",
+    )
     """`period_doubled_orbit` found only the period-1 orbit run twice from every start
     (past the flip point on the wrong side, or too far from it)."""
 
-    @property
-    def message(self) -> str:
-        return _MESSAGES[self]
-
-
-_MESSAGES = {
-    OrbitStatus.SUCCESS: "converged to an isolated periodic orbit",
-    OrbitStatus.NO_CONVERGENCE: "Newton did not converge within max_steps: improve the guess "
-    "(x0, period) or loosen newton_tol (it cannot beat the simulation's accuracy)",
-    OrbitStatus.DIVERGED: "Newton diverged (non-finite iterates): the guess is too far from a "
-    "periodic orbit, or the iteration left the region where the period map is defined",
-    OrbitStatus.SIMULATION_FAILED: "simulate did not complete one period at the result "
-    "(Zeno, max steps, non-finite state, or more impacts than max_impacts)",
-    OrbitStatus.SINGULAR: "the (A6) matrix of the Poincaré criterion is singular or "
-    "ill-conditioned: the orbit is not isolated (fold, multiplier 1 of a forced system, or "
-    "fixed_period=True on an autonomous system)",
-    OrbitStatus.FIX_TANGENT: "the flow is tangent to the fixed coordinate x_fix = const "
-    "(f_fix(x0) = 0): choose another `fix` (default: the largest |f_j(x0)|)",
-    OrbitStatus.EQUILIBRIUM: "the guess or the result is an equilibrium (f(x0) = 0), not a cycle",
-    OrbitStatus.BAD_PERIOD: "the period came out zero or negative",
-    OrbitStatus.IMPACT_COUNT: "the orbit found does not have num_impacts impacts per period",
-    OrbitStatus.NO_END_IMPACT: "x0 lies on a surface and was read as a post-impact state, "
-    "but the impact that closes the period was not reached",
-    OrbitStatus.LOOSE_ATOL: "atol is larger than 10·rtol times the orbit's size: the "
-    "simulation controls its error in absolute terms only, so the orbit and its multipliers "
-    "are not accurate to rtol; pass atol=None (scaled to the orbit) or a smaller atol",
-    OrbitStatus.NOT_DOUBLED: "every start converged to the period-1 orbit run twice: no "
-    "period-doubled orbit near the flip point at these args (try the other side of the "
-    "flip point, or args closer to it)",
-}
 
 
 # --------------------------------------------------------------------------------------
