@@ -254,7 +254,7 @@ def continue_bifurcation(
     solver: diffrax.AbstractSolver | None = None,
     newton_tol: float = 1e-9,
     max_newton_steps: int = 12,
-) -> BifurcationCurve:
+) -> BifurcationCurve | GrazingCurve:
     r"""Follow a period-doubling, fold, Neimark–Sacker or grazing point in two parameters
     (μ, ν): from ν = `nu_start` to `nu_stop`, μ free.
 
