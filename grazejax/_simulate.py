@@ -37,7 +37,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._adjoint import loop_kinds
-from ._compiler import single_run_jit
+from ._compiler import compiler_options
 from ._loop.bounded import bounded_while_loop
 from ._loop.compact import under_vmap
 from ._loop.forward import mark_forward_only, staged_log_loop, stages_log
@@ -210,11 +210,9 @@ def simulate(
         checked = validate_inputs(
             scene, x0, t0, t1, args, max_impacts=max_impacts, max_steps=max_steps,
             direction=direction, allow_float32=allow_float32, saveat=saveat,
+            check_scene=False,  # `prepare` checks it when the run compiles
         )
-        sol = _compiled_run(
-            scene, checked.x0, checked.t0, checked.t1, _traced_numbers(args),
-            saveat=checked.ts, direction=checked.sigma, **options,
-        )
+        sol = _run_compiled(scene, checked, _traced_numbers(args), options)
     else:
         sol = _run(scene, x0, t0, t1, args, saveat=saveat, direction=direction, **options)
     _raise_if_bad_input(sol)
@@ -242,11 +240,43 @@ def _run(scene, x0, t0, t1, args, *, saveat, direction, adjoint, max_steps, **op
 
 
 # Outside jit, the loop's `while` would run as its own program, traced and compiled again
-# at every call, with everything around it dispatched op by op. As one jitted program, a repeated call with the same scene and
-# options runs at once (x0, t0, t1, array args and Python floats in args are inputs; the
-# input checks already trace scene functions with abstract `args`, so no scene can read a
-# float of `args` in Python, and passing the floats as inputs changes no scene's behaviour).
-_compiled_run = single_run_jit(_run)
+# at every call, with everything around it dispatched op by op. As one jitted program, a
+# repeated call with the same scene and options runs at once (x0, t0, t1, array args and
+# Python floats in args are inputs; the input checks already trace scene functions with
+# abstract `args`, so no scene can read a float of `args` in Python, and passing the floats
+# as inputs changes no scene's behaviour). One `jax.jit` per static configuration, looked up
+# by a key built from the known structure of the call: its dispatch is JAX's own, where a
+# generic filtered jit partitions and hashes every input at every call.
+_COMPILED: dict = {}
+
+
+def _run_compiled(scene, checked, args, options) -> Solution:
+    """`_run` as a compiled program, cached per scene, options and the static leaves of
+    `args` (the arrays of `args` and `options`, x0, t0, t1 and the save times are inputs)."""
+    leaves, tree = jax.tree.flatten((args, options))
+    is_input = tuple(eqx.is_array(leaf) for leaf in leaves)
+    inputs = [leaf for leaf, dynamic in zip(leaves, is_input, strict=True) if dynamic]
+    static = tuple(None if dynamic else leaf for leaf, dynamic in zip(leaves, is_input, strict=True))
+    key = (scene, checked.sigma, checked.ts is None, tree, static)
+    try:
+        run = _COMPILED.get(key)
+    except TypeError as error:
+        raise TypeError(
+            "simulate: every leaf of `args` and of the options must be an array, a number or "
+            f"another hashable value (it is part of the compiled program's key): {error}"
+        ) from error
+    if run is None:
+        sigma = checked.sigma
+
+        def program(x0, t0, t1, ts, inputs):
+            given = iter(inputs)
+            args_, options_ = jax.tree.unflatten(
+                tree, [next(given) if leaf is None else leaf for leaf in static])
+            return _run(scene, x0, t0, t1, args_, saveat=ts, direction=sigma, **options_)
+
+        run = jax.jit(program, compiler_options=compiler_options(batched=False))
+        _COMPILED[key] = run
+    return run(checked.x0, checked.t0, checked.t1, checked.ts, inputs)
 
 
 def _traced_numbers(args):

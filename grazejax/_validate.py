@@ -23,14 +23,30 @@ class Checked(NamedTuple):
     ts: jax.Array | None
 
 
+def _as_array(value, dtype):
+    """`value` as an array of `dtype`: a JAX array of that dtype as it is, other values
+    (numbers, NumPy) as NumPy arrays (cheap to make; the compiled run takes them as inputs),
+    a tracer as a JAX array."""
+    if isinstance(value, jax.Array) and value.dtype == dtype:
+        return value
+    if is_concrete(value):
+        return np.asarray(value, dtype=dtype)
+    return jnp.asarray(value, dtype=dtype)
+
+
 def is_concrete(*trees) -> bool:
     """No leaf is a tracer: the values can be checked in Python (outside jit/vmap)."""
     return not any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves(trees))
 
 
 def validate_inputs(
-    scene, x0, t0, t1, args, *, max_impacts, max_steps, direction, allow_float32, saveat
+    scene, x0, t0, t1, args, *, max_impacts, max_steps, direction, allow_float32, saveat,
+    check_scene: bool = True,
 ) -> Checked:
+    """The inputs of one run, checked and converted. `check_scene=False` skips tracing the
+    scene's functions on the inputs' shapes: for a caller whose run traces this check
+    anyway when it compiles (a compiled program runs it once per input shapes, not per
+    call)."""
     if not isinstance(scene, Scene):
         raise TypeError(f"scene must be a grazejax.Scene, got {type(scene).__name__}")
     if not isinstance(max_impacts, (int, np.integer)) or max_impacts < 1:
@@ -56,7 +72,7 @@ def validate_inputs(
     concrete_x0 = is_concrete(x0)
     if concrete_x0 and not np.all(np.isfinite(np.asarray(x0, dtype=np.float64))):
         raise ValueError(f"x0 contains NaN or inf: {np.asarray(x0)}")
-    x0 = jnp.asarray(x0, dtype=dtype)
+    x0 = _as_array(x0, dtype)
     if x0.ndim != 1:
         raise ValueError(
             f"x0 must be a 1-D state vector of shape (n,), got shape {x0.shape}. "
@@ -74,8 +90,8 @@ def validate_inputs(
     concrete_times = is_concrete(t0) and is_concrete(t1)
     if concrete_times:
         a, b = np.asarray(t0, dtype=np.float64), np.asarray(t1, dtype=np.float64)
-    t0 = jnp.asarray(t0, dtype=dtype)
-    t1 = jnp.asarray(t1, dtype=dtype)
+    t0 = _as_array(t0, dtype)
+    t1 = _as_array(t1, dtype)
     if t0.ndim != 0 or t1.ndim != 0:
         raise ValueError(f"t0 and t1 must be scalars, got shapes {t0.shape} and {t1.shape}")
     if concrete_times:
@@ -97,7 +113,8 @@ def validate_inputs(
             )
         sigma = int(direction)
 
-    _check_scene_shapes(scene, x0, t0, args)
+    if check_scene:
+        _check_scene_shapes(scene, x0, t0, args)
 
     ts = None
     saveat = saveat_times(saveat, t0, t1)

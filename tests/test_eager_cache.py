@@ -1,8 +1,8 @@
 """`simulate` called outside `jit` compiles its program once per scene and options.
 
 Before, each such call traced and compiled the loop again (~1.5 s for ex1dof); now the run
-is one cached `eqx.filter_jit` program whose inputs are x0, t0, t1, the array leaves of
-`args` and its Python floats. The input checks still run on the values (outside the
+is one cached compiled program (a `jax.jit` per scene and options) whose inputs are x0, t0,
+t1, the array leaves of `args` and its Python floats. The input checks still run on the values (outside the
 program), and the results are those of the same run inside a user's `jax.jit` with
 `compiler_options(batched=False)` (XLA:CPU's quicker emitters for one trajectory).
 """
