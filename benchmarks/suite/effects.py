@@ -60,24 +60,57 @@ def section_effects(cases, S, res):
     scene, args = case.scene, case.args
     x0 = jnp.asarray(case.x0)
     lanes = S["effects_lanes"]
-    ts = jnp.linspace(0.0, t1, 1000)
-    extra = gj.Scene(
-        scene.vector_field,
-        [
-            *scene.surfaces,
-            gj.Surface(
-                phi=lambda t, x, a: 10.0 - x[0], jump=lambda t, x, a: x, name="never reached"
-            ),
-        ],
+    sim = _effects_sim(case)
+    full = S["effects_full"]
+    V = _option_variants(sim, x0, args) + _effect_variants(case, sim, x0, lanes)
+    if not full:  # quick: fewer variants (each timed one is one compilation)
+        drop = (
+            "log (max_impacts 32)",
+            "log (max_impacts 48)",
+            "x0 and K",
+            "log (max_impacts 4096)",
+            "max_steps 200000",
+        )
+        V = [v for v in V if not any(d in v[0] for d in drop)]
+    log(f"3) effects: exnonaxial, {case.t1:g} time units, 17 impacts, Tsit5 rtol {tol:g}")
+    rows = []
+    for label, kind, fn, fargs in V:
+        if kind == "batch":
+            rows.append(_batch_row(cases, label, lanes, S))
+        else:
+            rows.append(_variant_row(label, kind, fn, fargs, S, full))
+    reference, tm, nsteps = _diffrax_alone(scene, x0, args, t1, tol, S)
+    gj_steps = int(
+        gj.simulate(scene, x0, 0.0, t1, args, rtol=tol, atol=tol, max_impacts=32).num_steps
     )
+    base = rows[0]
+    base["steps"] = gj_steps
+    rows.append(reference)
+    per_step = _ratios_to_base(rows, base, gj_steps, tm, nsteps)
+    res["effects"] = {
+        "rows": rows,
+        "per_step_overhead": per_step,
+        "tol": tol,
+        "scene": "exnonaxial, x0 (0, 1.2), t1 100 (17 impacts), Tsit5",
+    }
+    return rows
+
+
+def _effects_sim(case):
+    """`simulate` on the effects scene at EFFECTS_TOL up to t1, max_impacts 32 unless given."""
+    tol, t1, scene = EFFECTS_TOL, case.t1, case.scene
 
     def sim(x0_, a, scene_=scene, **kw):
         kw = {"max_impacts": 32, **kw}
         return gj.simulate(scene_, x0_, 0.0, t1, a, rtol=tol, atol=tol, **kw)
 
+    return sim
+
+
+def _option_variants(sim, x0, args):
+    """The base run (final state only) and options it does not use: (label, kind, fn, args)."""
     unused_args = {**args, "unused": jnp.ones(8)}
-    full = S["effects_full"]
-    V = [
+    return [
         (
             "base: final state only (max_impacts 32)",
             "base",
@@ -108,6 +141,23 @@ def section_effects(cases, S, res):
             lambda x, a: sim(x, a, max_impacts=4096).x_final,
             (x0, args),
         ),
+    ]
+
+
+def _effect_variants(case, sim, x0, lanes):
+    """Each effect a run can ask for, as (label, kind, fn, args); the batch is timed apart."""
+    args = case.args
+    ts = jnp.linspace(0.0, case.t1, 1000)
+    extra = gj.Scene(
+        case.scene.vector_field,
+        [
+            *case.scene.surfaces,
+            gj.Surface(
+                phi=lambda t, x, a: 10.0 - x[0], jump=lambda t, x, a: x, name="never reached"
+            ),
+        ],
+    )
+    return [
         ("+ impact log (max_impacts 32)", "effect", lambda x, a: sim(x, a), (x0, args)),
         (
             "+ impact log (max_impacts 48)",
@@ -155,75 +205,70 @@ def section_effects(cases, S, res):
             (x0, args),
         ),
     ]
-    if not full:  # quick: fewer variants (each timed one is one compilation)
-        drop = (
-            "log (max_impacts 32)",
-            "log (max_impacts 48)",
-            "x0 and K",
-            "log (max_impacts 4096)",
-            "max_steps 200000",
-        )
-        V = [v for v in V if not any(d in v[0] for d in drop)]
-    log(f"3) effects: exnonaxial, {case.t1:g} time units, 17 impacts, Tsit5 rtol {tol:g}")
-    rows = []
-    for label, kind, fn, fargs in V:
-        if kind == "batch":
-            tm, comp, (hlo, chlo) = batch_timing(cases, lanes, S)
-            rows.append(
-                {
-                    "effect": label,
-                    "kind": "effect",
-                    "hlo_chars": hlo,
-                    "compiled_hlo_chars": chlo,
-                    "compile_s": comp,
-                    "time_min_s": tm["min_s"] / lanes,
-                    "time_median_s": tm["median_s"] / lanes,
-                    "repeats": tm["repeats"],
-                    "lanes": lanes,
-                }
-            )
-            continue
-        # Lower (trace) and compile explicitly: the compile time is that of XLA alone, and the
-        # optimized HLO shows what the compiled program really contains (XLA removes outputs
-        # nobody asked for, e.g. the impact log of a final-state-only run).
-        t = time.perf_counter()
-        lowered = jax.jit(fn).lower(*fargs)
-        lower_s = time.perf_counter() - t
-        t = time.perf_counter()
-        compiled = lowered.compile()
-        compile_s = time.perf_counter() - t
-        row = {
-            "effect": label,
-            "kind": kind,
-            "hlo_chars": len(lowered.as_text()),
-            "compiled_hlo_chars": len(compiled.as_text()),
-            "lower_s": lower_s,
-            "compile_s": compile_s,
-            "lanes": 1,
-        }
-        if kind == "unrelated" and not full:
-            # Quick mode: compiled and compared, not timed (same optimized program size).
-            row.update(
-                {
-                    "time_min_s": None,
-                    "time_median_s": None,
-                    "repeats": 0,
-                    "note": "not timed (quick mode)",
-                }
-            )
-            rows.append(row)
-            continue
-        _, tm = measure(
-            lambda compiled=compiled, fargs=fargs: jax.block_until_ready(compiled(*fargs)),
-            2 * S["budget"],
-            3 * S["max_rep"],
-            min_repeats=3,
-        )
+
+
+def _batch_row(cases, label, lanes, S):
+    """The shared vmapped run on `lanes` starts, per lane."""
+    tm, comp, (hlo, chlo) = batch_timing(cases, lanes, S)
+    return {
+        "effect": label,
+        "kind": "effect",
+        "hlo_chars": hlo,
+        "compiled_hlo_chars": chlo,
+        "compile_s": comp,
+        "time_min_s": tm["min_s"] / lanes,
+        "time_median_s": tm["median_s"] / lanes,
+        "repeats": tm["repeats"],
+        "lanes": lanes,
+    }
+
+
+def _variant_row(label, kind, fn, fargs, S, full):
+    """One variant lowered, compiled and (unless an unused option in quick mode) timed."""
+    # Lower (trace) and compile explicitly: the compile time is that of XLA alone, and the
+    # optimized HLO shows what the compiled program really contains (XLA removes outputs
+    # nobody asked for, e.g. the impact log of a final-state-only run).
+    t = time.perf_counter()
+    lowered = jax.jit(fn).lower(*fargs)
+    lower_s = time.perf_counter() - t
+    t = time.perf_counter()
+    compiled = lowered.compile()
+    compile_s = time.perf_counter() - t
+    row = {
+        "effect": label,
+        "kind": kind,
+        "hlo_chars": len(lowered.as_text()),
+        "compiled_hlo_chars": len(compiled.as_text()),
+        "lower_s": lower_s,
+        "compile_s": compile_s,
+        "lanes": 1,
+    }
+    if kind == "unrelated" and not full:
+        # Quick mode: compiled and compared, not timed (same optimized program size).
         row.update(
-            {"time_min_s": tm["min_s"], "time_median_s": tm["median_s"], "repeats": tm["repeats"]}
+            {
+                "time_min_s": None,
+                "time_median_s": None,
+                "repeats": 0,
+                "note": "not timed (quick mode)",
+            }
         )
-        rows.append(row)
-    # The loop's own overhead: diffrax alone on the same flow (no events), per step.
+        return row
+    _, tm = measure(
+        lambda compiled=compiled, fargs=fargs: jax.block_until_ready(compiled(*fargs)),
+        2 * S["budget"],
+        3 * S["max_rep"],
+        min_repeats=3,
+    )
+    row.update(
+        {"time_min_s": tm["min_s"], "time_median_s": tm["median_s"], "repeats": tm["repeats"]}
+    )
+    return row
+
+
+def _diffrax_alone(scene, x0, args, t1, tol, S):
+    """The loop's own overhead: diffrax alone on the same flow (no events), per step. Returns
+    its row, its timings and its number of steps."""
     term = diffrax.ODETerm(scene.vector_field)
     ctrl = diffrax.PIDController(rtol=tol, atol=tol)
 
@@ -251,25 +296,24 @@ def section_effects(cases, S, res):
     (_, nsteps), tm = measure(
         lambda: jax.block_until_ready(jp(x0, args)), 2 * S["budget"], 3 * S["max_rep"], 3
     )
-    gj_steps = int(
-        gj.simulate(scene, x0, 0.0, t1, args, rtol=tol, atol=tol, max_impacts=32).num_steps
-    )
-    base = rows[0]
-    base["steps"] = gj_steps
-    rows.append(
-        {
-            "effect": "diffrax.diffeqsolve of the flow alone (no events)",
-            "kind": "reference",
-            "hlo_chars": hlo,
-            "compiled_hlo_chars": chlo,
-            "compile_s": c["compile_s"],
-            "time_min_s": tm["min_s"],
-            "time_median_s": tm["median_s"],
-            "repeats": tm["repeats"],
-            "lanes": 1,
-            "steps": int(nsteps),
-        }
-    )
+    row = {
+        "effect": "diffrax.diffeqsolve of the flow alone (no events)",
+        "kind": "reference",
+        "hlo_chars": hlo,
+        "compiled_hlo_chars": chlo,
+        "compile_s": c["compile_s"],
+        "time_min_s": tm["min_s"],
+        "time_median_s": tm["median_s"],
+        "repeats": tm["repeats"],
+        "lanes": 1,
+        "steps": int(nsteps),
+    }
+    return row, tm, nsteps
+
+
+def _ratios_to_base(rows, base, gj_steps, tm, nsteps):
+    """Each row's time and HLO sizes over the base run's, logged; returns grazejax's cost per
+    step against diffrax alone (timings `tm` over `nsteps` steps)."""
     for r_ in rows:
         r_["ratio_time"] = (
             None if r_["time_min_s"] is None else r_["time_min_s"] / base["time_min_s"]
@@ -291,10 +335,4 @@ def section_effects(cases, S, res):
     log(
         f"   per step: grazejax/diffrax alone = {per_step['ratio']:.2f} ({gj_steps} vs {int(nsteps)} steps)"
     )
-    res["effects"] = {
-        "rows": rows,
-        "per_step_overhead": per_step,
-        "tol": tol,
-        "scene": "exnonaxial, x0 (0, 1.2), t1 100 (17 impacts), Tsit5",
-    }
-    return rows
+    return per_step

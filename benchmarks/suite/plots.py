@@ -163,104 +163,8 @@ def plot_grazing(g, path):
         spec = g["setups"][setup]
         rows = [r for r in g["rows"] if r["setup"] == setup and r["depth"] > 0]
         ax_e, ax_s, ax_t = axes[row_i]
-        for tool, method in sorted({(r["tool"], r["method"]) for r in rows}):
-            rs = sorted(
-                [r for r in rows if (r["tool"], r["method"]) == (tool, method)],
-                key=lambda r: -r["depth"],
-            )
-            st = (
-                style_of(tool, method.split()[0])
-                if tool != "heyoka"
-                else STYLE[("heyoka", "taylor")]
-            )
-            mfc = "none" if "max_step" in method else st["color"]
-            lab = f"{tool} {method}"
-            ok = [r for r in rs if r.get("ok")]
-            if ok:
-                ax_e.loglog(
-                    [r["depth"] for r in ok],
-                    [max(r["err_t"], FLOOR) for r in ok],
-                    marker=st["marker"],
-                    color=st["color"],
-                    ls=st["ls"],
-                    mfc=mfc,
-                    label=lab,
-                )
-                ax_t.loglog(
-                    [r["depth"] for r in ok],
-                    [r["time_min_s"] for r in ok],
-                    marker=st["marker"],
-                    color=st["color"],
-                    ls=st["ls"],
-                    mfc=mfc,
-                    label=lab,
-                )
-            miss = [r for r in rs if not r.get("ok")]
-            if miss:  # at the top, one height per tool so that they do not hide each other
-                y_miss = 1.0 if tool == "grazejax" else (0.08 if "max_step" in method else 0.28)
-                ax_e.plot(
-                    [r["depth"] for r in miss],
-                    [y_miss] * len(miss),
-                    marker="X",
-                    ls="none",
-                    color=st["color"],
-                    mfc=mfc,
-                    ms=8,
-                    label=f"{lab}: wrong impact count",
-                )
-            if tool == "grazejax":
-                ax_s.semilogx(
-                    [r["depth"] for r in rs],
-                    [r["steps"] for r in rs],
-                    marker=st["marker"],
-                    color=st["color"],
-                    label=f"{lab}",
-                )
-        d = np.logspace(-14, -1, 20)
-        c0 = g["tol"] if setup == "rotation" else 1e-16
-        ax_e.loglog(d, c0 / np.sqrt(d), color="gray", ls=":", label=f"{c0:g} · δ^(−1/2)")
-        ax_e.loglog(
-            d,
-            np.sqrt(2 * d),
-            color="gray",
-            ls="--",
-            lw=0.8,
-            label="√(2δ): a contact placed at the minimum",
-        )
-        band = 100 * g["tol"] if setup == "rotation" else 1e-13
-        for ax in (ax_e, ax_s, ax_t):
-            ax.axvspan(band, 1e-15, color="0.9", zorder=0)
-        ax_e.text(
-            band,
-            3e-17,
-            " computed orbit's own error ≳ δ"
-            if setup == "rotation"
-            else " within grazejax's contact floor (γ)",
-            fontsize=7,
-            va="bottom",
-        )
-        ax_e.set_ylabel("impact-time error")
-        ax_e.set_ylim(1e-17, 3)
-        ax_e.set_title(spec["title"], fontsize=9)
-        ax_s.set_ylabel("solver steps (incl. rejected, landing)")
-        ax_s.set_title("grazejax steps vs depth (cost of the in-step dip search)", fontsize=9)
-        ax_s.set_ylim(bottom=0)
-        ax_t.set_ylabel("wall time per run [s]")
-        ax_t.set_title("time per run", fontsize=9)
-        for ax in (ax_e, ax_s, ax_t):
-            ax.set_xlabel("depth δ of the excursion beyond Γ")
-            ax.grid(True, alpha=0.3)
-            ax.invert_xaxis()
-        handles, labels = ax_e.get_legend_handles_labels()
-        ax_t.legend(
-            handles,
-            labels,
-            fontsize=7.5,
-            loc="upper left",
-            bbox_to_anchor=(1.02, 1.0),
-            frameon=False,
-        )
-        ax_s.legend(fontsize=8)
+        _grazing_series(ax_e, ax_s, ax_t, rows)
+        _grazing_decor(ax_e, ax_s, ax_t, g, setup, spec)
     fig.suptitle(
         f"The cost of grazing: one impact at depth δ → 0, every tool at tol {g['tol']:g} "
         "(truth: closed forms; X at the top: wrong number of impacts; grey band: see the note in it). "
@@ -270,6 +174,113 @@ def plot_grazing(g, path):
     fig.tight_layout(rect=(0, 0, 1, 0.96))
     fig.savefig(path, dpi=90)
     plt.close(fig)
+
+
+def _grazing_series(ax_e, ax_s, ax_t, rows):
+    """Each tool's impact-time error, steps (grazejax) and time against the depth; wrong
+    impact counts as X at the top."""
+    for tool, method in sorted({(r["tool"], r["method"]) for r in rows}):
+        rs = sorted(
+            [r for r in rows if (r["tool"], r["method"]) == (tool, method)],
+            key=lambda r: -r["depth"],
+        )
+        st = (
+            style_of(tool, method.split()[0])
+            if tool != "heyoka"
+            else STYLE[("heyoka", "taylor")]
+        )
+        mfc = "none" if "max_step" in method else st["color"]
+        lab = f"{tool} {method}"
+        ok = [r for r in rs if r.get("ok")]
+        if ok:
+            ax_e.loglog(
+                [r["depth"] for r in ok],
+                [max(r["err_t"], FLOOR) for r in ok],
+                marker=st["marker"],
+                color=st["color"],
+                ls=st["ls"],
+                mfc=mfc,
+                label=lab,
+            )
+            ax_t.loglog(
+                [r["depth"] for r in ok],
+                [r["time_min_s"] for r in ok],
+                marker=st["marker"],
+                color=st["color"],
+                ls=st["ls"],
+                mfc=mfc,
+                label=lab,
+            )
+        miss = [r for r in rs if not r.get("ok")]
+        if miss:  # at the top, one height per tool so that they do not hide each other
+            y_miss = 1.0 if tool == "grazejax" else (0.08 if "max_step" in method else 0.28)
+            ax_e.plot(
+                [r["depth"] for r in miss],
+                [y_miss] * len(miss),
+                marker="X",
+                ls="none",
+                color=st["color"],
+                mfc=mfc,
+                ms=8,
+                label=f"{lab}: wrong impact count",
+            )
+        if tool == "grazejax":
+            ax_s.semilogx(
+                [r["depth"] for r in rs],
+                [r["steps"] for r in rs],
+                marker=st["marker"],
+                color=st["color"],
+                label=f"{lab}",
+            )
+
+
+def _grazing_decor(ax_e, ax_s, ax_t, g, setup, spec):
+    """The δ^(−1/2) and √(2δ) guides, the band below the solver's resolution, labels, legends."""
+    d = np.logspace(-14, -1, 20)
+    c0 = g["tol"] if setup == "rotation" else 1e-16
+    ax_e.loglog(d, c0 / np.sqrt(d), color="gray", ls=":", label=f"{c0:g} · δ^(−1/2)")
+    ax_e.loglog(
+        d,
+        np.sqrt(2 * d),
+        color="gray",
+        ls="--",
+        lw=0.8,
+        label="√(2δ): a contact placed at the minimum",
+    )
+    band = 100 * g["tol"] if setup == "rotation" else 1e-13
+    for ax in (ax_e, ax_s, ax_t):
+        ax.axvspan(band, 1e-15, color="0.9", zorder=0)
+    ax_e.text(
+        band,
+        3e-17,
+        " computed orbit's own error ≳ δ"
+        if setup == "rotation"
+        else " within grazejax's contact floor (γ)",
+        fontsize=7,
+        va="bottom",
+    )
+    ax_e.set_ylabel("impact-time error")
+    ax_e.set_ylim(1e-17, 3)
+    ax_e.set_title(spec["title"], fontsize=9)
+    ax_s.set_ylabel("solver steps (incl. rejected, landing)")
+    ax_s.set_title("grazejax steps vs depth (cost of the in-step dip search)", fontsize=9)
+    ax_s.set_ylim(bottom=0)
+    ax_t.set_ylabel("wall time per run [s]")
+    ax_t.set_title("time per run", fontsize=9)
+    for ax in (ax_e, ax_s, ax_t):
+        ax.set_xlabel("depth δ of the excursion beyond Γ")
+        ax.grid(True, alpha=0.3)
+        ax.invert_xaxis()
+    handles, labels = ax_e.get_legend_handles_labels()
+    ax_t.legend(
+        handles,
+        labels,
+        fontsize=7.5,
+        loc="upper left",
+        bbox_to_anchor=(1.02, 1.0),
+        frameon=False,
+    )
+    ax_s.legend(fontsize=8)
 
 
 def plot_effects(e, path):

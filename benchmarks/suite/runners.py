@@ -310,56 +310,65 @@ def wp_batch(case, solver_name, lanes, S, rows):
         if c is None:
             c = first_minus_second(lambda xs=xs: batched(xs, case.args, S["tols"][0]))
         for tol in S["tols"]:
-            sol, tm = measure(
-                lambda xs=xs, tol=tol: jax.block_until_ready(batched(xs, case.args, tol)),
-                S["budget"],
-                max(2, S["max_rep"] // 3),
+            _batch_rows_at(case, solver_name, lanes, kind, batched, xs, refs, c, tol, S, rows)
+    _heyoka_over_starts(case, start_sets["random phases"], lanes, S, rows)
+
+
+def _batch_rows_at(case, solver_name, lanes, kind, batched, xs, refs, c, tol, S, rows):
+    """The vmapped run over one set of starts at one tolerance: time per lane, max errors."""
+    sol, tm = measure(
+        lambda xs=xs, tol=tol: jax.block_until_ready(batched(xs, case.args, tol)),
+        S["budget"],
+        max(2, S["max_rep"] // 3),
+    )
+    errs = []
+    for i in range(lanes):
+        k = int(sol.num_impacts[i])
+        errs.append(
+            errors(
+                np.asarray(sol.impact_times[i])[:k],
+                np.asarray(sol.impact_post[i])[:k],
+                np.asarray(sol.x_final[i]),
+                refs[i],
             )
-            errs = []
-            for i in range(lanes):
-                k = int(sol.num_impacts[i])
-                errs.append(
-                    errors(
-                        np.asarray(sol.impact_times[i])[:k],
-                        np.asarray(sol.impact_post[i])[:k],
-                        np.asarray(sol.x_final[i]),
-                        refs[i],
-                    )
-                )
-            agg = {m: max(e[m] for e in errs) for m in METRICS}
-            ok = all(e["ok"] for e in errs) and bool(
-                np.all(np.asarray(sol.status) == int(gj.Status.SUCCESS))
-            )
-            rows.append(
-                {
-                    "case": case.name,
-                    "tool": "grazejax-batch",
-                    "method": f"{solver_name} vmap×{lanes}, {kind}",
-                    "batch_starts": kind,
-                    "tol": tol,
-                    "max_step": None,
-                    "time_min_s": tm["min_s"] / lanes,
-                    "time_median_s": tm["median_s"] / lanes,
-                    "repeats": tm["repeats"],
-                    "steps": float(np.mean(sol.num_steps)),
-                    "steps_max": int(np.max(sol.num_steps)),
-                    "evals": float(np.mean(sol.num_steps)) * stages_per_step(solver_name),
-                    "evals_kind": "mean solver steps per lane × stages",
-                    "lanes": lanes,
-                    "compile_s": c["compile_s"],
-                    "ok": ok,
-                    "status": "ok" if ok else "lane failure",
-                    "err": max(agg.values()),
-                    **agg,
-                    "impacts_expected": int(max(len(r["impact_times"]) for r in refs)),
-                    "impacts_found": int(np.max(sol.num_impacts)),
-                }
-            )
-            log(
-                f"   grazejax {solver_name} vmap×{lanes} ({kind}) tol {tol:.0e}: "
-                f"{1e3 * tm['min_s'] / lanes:8.3f} ms/lane  max err t {fmt_e(agg['err_t'])}"
-            )
-    starts = start_sets["random phases"]
+        )
+    agg = {m: max(e[m] for e in errs) for m in METRICS}
+    ok = all(e["ok"] for e in errs) and bool(
+        np.all(np.asarray(sol.status) == int(gj.Status.SUCCESS))
+    )
+    rows.append(
+        {
+            "case": case.name,
+            "tool": "grazejax-batch",
+            "method": f"{solver_name} vmap×{lanes}, {kind}",
+            "batch_starts": kind,
+            "tol": tol,
+            "max_step": None,
+            "time_min_s": tm["min_s"] / lanes,
+            "time_median_s": tm["median_s"] / lanes,
+            "repeats": tm["repeats"],
+            "steps": float(np.mean(sol.num_steps)),
+            "steps_max": int(np.max(sol.num_steps)),
+            "evals": float(np.mean(sol.num_steps)) * stages_per_step(solver_name),
+            "evals_kind": "mean solver steps per lane × stages",
+            "lanes": lanes,
+            "compile_s": c["compile_s"],
+            "ok": ok,
+            "status": "ok" if ok else "lane failure",
+            "err": max(agg.values()),
+            **agg,
+            "impacts_expected": int(max(len(r["impact_times"]) for r in refs)),
+            "impacts_found": int(np.max(sol.num_impacts)),
+        }
+    )
+    log(
+        f"   grazejax {solver_name} vmap×{lanes} ({kind}) tol {tol:.0e}: "
+        f"{1e3 * tm['min_s'] / lanes:8.3f} ms/lane  max err t {fmt_e(agg['err_t'])}"
+    )
+
+
+def _heyoka_over_starts(case, starts, lanes, S, rows):
+    """heyoka over the random-phase batch starts: mean time per run, max errors."""
     refs = [C.heyoka_reference(case.peer_system, s, case.t1, case.peer_params) for s in starts]
     # heyoka over the same starts, per run.
     if HAVE_HEYOKA:

@@ -21,6 +21,36 @@ def section_scaling(cases, S, res):
     tol = 1e-8
     log(f"5) scaling (oscillator, Tsit5, rtol = atol = {tol:g}; heyoka tol {tol:g}; SciPy DOP853)")
     nmax = max(S["scaling_impacts"])
+    rows_n, fits_n, c = _scaling_impacts(case, nmax, tol, S)
+    rows_b, fit_b, hy_per_run = _scaling_batch(cases, S)
+    ex = cases["exnonaxial"]
+    res["scaling"] = {
+        "impacts": {
+            "rows": rows_n,
+            "fits": fits_n,
+            "compile_s": c["compile_s"],
+            "tol": tol,
+            "max_impacts_static": nmax + 8,
+        },
+        "batch": {
+            "rows": rows_b,
+            "fit": fit_b,
+            "t1": ex.t1,
+            "tol": EFFECTS_TOL,
+            "heyoka_per_run_same_starts_s": hy_per_run,
+            "scene": "exnonaxial (the effects scene): starts on circles r = 1.2…1.212 "
+            "at random phases, t1 = 100 (17 impacts each), Tsit5, final state",
+        },
+        "scene": "impacts: forced impact oscillator (ζ 0.05, A 1, ω 1.5, σ 0.2, r 0.8), Tsit5",
+    }
+    for k, v in fits_n.items():
+        log(f"   time ∝ impacts^{v['exponent']:.2f} ({k}, impacts ≥ 16)")
+    if fit_b:
+        log(f"   time ∝ batch^{fit_b['exponent']:.2f} (batch ≥ 16)")
+
+
+def _impact_times(case, nmax):
+    """The oscillator's first nmax + 1 impact times (heyoka at tol 1e-15, else closed form)."""
     ref = (
         HeyokaImpactRunner(case.peer_system, tol=1e-15).run(
             case.x0, 0.0, 6.0 * (nmax + 2), nmax + 1, **case.peer_params
@@ -34,6 +64,13 @@ def section_scaling(cases, S, res):
         times = C.LinearStopTruth(C._oscillator_matrix(0.05), [0, 1], 1.0, 1.5, 0.2, 0.8)(
             case.x0, 6.0 * (nmax + 2), nmax + 1
         )["impact_times"]
+    return times
+
+
+def _scaling_impacts(case, nmax, tol, S):
+    """Time vs the number of impacts (t1 between impacts n and n + 1), with and without the
+    impact log, and the peers; returns the rows, the fits and the compile time."""
+    times = _impact_times(case, nmax)
     run = jit_run(case.scene, "Tsit5", nmax + 8, output="final")
     run_log = jit_run(case.scene, "Tsit5", nmax + 8)
     x0 = jnp.asarray(case.x0)
@@ -82,6 +119,11 @@ def section_scaling(cases, S, res):
             + (f", heyoka {1e3 * row['heyoka_s']:.3f} ms" if "heyoka_s" in row else "")
             + (f", scipy {1e3 * row['scipy_s']:.1f} ms" if "scipy_s" in row else "")
         )
+    return rows_n, _impact_fits(rows_n), c
+
+
+def _impact_fits(rows_n):
+    """Per tool: power law over N ≥ 16 and a linear fit a + b N over all N."""
     fits_n = {}
     for key in ("grazejax_s", "grazejax_log_s", "heyoka_s", "scipy_s"):
         pts = [(r["impacts"], r[key]) for r in rows_n if key in r and r["impacts"] >= 16]
@@ -93,6 +135,12 @@ def section_scaling(cases, S, res):
             ns, ys = zip(*[(r["impacts"], r[key]) for r in rows_n if key in r], strict=True)
             b, a = np.polyfit(ns, ys, 1)
             fits_n[key].update({"linear_intercept_s": float(a), "linear_per_impact_s": float(b)})
+    return fits_n
+
+
+def _scaling_batch(cases, S):
+    """The shared vmapped run at each batch size, heyoka per run over the same starts, and
+    the fitted exponent in the batch size."""
     # Batch size: the effects scene (exnonaxial, 17 impacts per lane), jax.vmap'ed.
     rows_b = []
     for b in S["scaling_batch"]:
@@ -129,26 +177,4 @@ def section_scaling(cases, S, res):
     if fit_b and len(pts) >= 4:  # the large-batch regime alone (per-lane cost has levelled off)
         fit_b["exponent_largest3"] = fit_power(*zip(*pts[-3:], strict=True))[0]
         fit_b["over_largest3"] = [p[0] for p in pts[-3:]]
-    res["scaling"] = {
-        "impacts": {
-            "rows": rows_n,
-            "fits": fits_n,
-            "compile_s": c["compile_s"],
-            "tol": tol,
-            "max_impacts_static": nmax + 8,
-        },
-        "batch": {
-            "rows": rows_b,
-            "fit": fit_b,
-            "t1": ex.t1,
-            "tol": EFFECTS_TOL,
-            "heyoka_per_run_same_starts_s": hy_per_run,
-            "scene": "exnonaxial (the effects scene): starts on circles r = 1.2…1.212 "
-            "at random phases, t1 = 100 (17 impacts each), Tsit5, final state",
-        },
-        "scene": "impacts: forced impact oscillator (ζ 0.05, A 1, ω 1.5, σ 0.2, r 0.8), Tsit5",
-    }
-    for k, v in fits_n.items():
-        log(f"   time ∝ impacts^{v['exponent']:.2f} ({k}, impacts ≥ 16)")
-    if fit_b:
-        log(f"   time ∝ batch^{fit_b['exponent']:.2f} (batch ≥ 16)")
+    return rows_b, fit_b, hy_per_run
