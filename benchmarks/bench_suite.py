@@ -44,7 +44,13 @@ import _cases as C  # noqa: E402
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 from _cases import log  # noqa: E402
-from suite.common import HAVE_HEYOKA, HAVE_SCIPY, HEADLINE_CASE, extra_versions, settings  # noqa: E402
+from suite.common import (  # noqa: E402
+    HAVE_HEYOKA,
+    HAVE_SCIPY,
+    HEADLINE_CASE,
+    extra_versions,
+    settings,
+)
 from suite.compile_times import section_compile  # noqa: E402
 from suite.effects import section_effects  # noqa: E402
 from suite.floquet import section_floquet  # noqa: E402
