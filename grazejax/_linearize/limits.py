@@ -114,13 +114,12 @@ def _extrapolate(d, jacobians, met) -> OneSidedLimit:
     condition = "N1" if met.all() else ("N2" if not met.any() else "mixed")
     norms = np.linalg.norm(W, axis=(1, 2))
     exponent, _ = _fit_exponent(d, norms)
+
+    def found(limit, error, converged, note):
+        return OneSidedLimit(d, W, met, condition, exponent, limit, error, converged, note)
+
     if condition == "mixed":
-        return OneSidedLimit(
-            d,
-            W,
-            met,
-            condition,
-            exponent,
+        return found(
             np.full_like(W[0], np.nan),
             math.inf,
             False,
@@ -130,25 +129,10 @@ def _extrapolate(d, jacobians, met) -> OneSidedLimit:
     delta = np.linalg.norm(diffs, axis=(1, 2))
     scale = 1.0 + norms[-1]
     if delta[-1] <= 1e-10 * scale:
-        return OneSidedLimit(
-            d,
-            W,
-            met,
-            condition,
-            exponent,
-            W[-1],
-            float(delta[-1]),
-            True,
-            "constant to round-off over the last distances",
-        )
+        return found(W[-1], float(delta[-1]), True, "constant to round-off over the last distances")
     growing = exponent < -0.1 and norms[-1] > 2 * norms[0]
     if growing:
-        return OneSidedLimit(
-            d,
-            W,
-            met,
-            condition,
-            exponent,
+        return found(
             np.full_like(W[0], np.nan),
             math.inf,
             False,
@@ -166,27 +150,11 @@ def _extrapolate(d, jacobians, met) -> OneSidedLimit:
         limit = richardson(len(d) - 2)
         error = float(np.linalg.norm(limit - richardson(len(d) - 3)))
         converged = error <= 1e-6 * (1 + np.linalg.norm(limit))
-        return OneSidedLimit(
-            d,
-            W,
-            met,
-            condition,
-            exponent,
-            limit,
-            error,
-            bool(converged),
-            f"converges like d^{p:.3f}; Richardson-extrapolated",
+        return found(
+            limit, error, bool(converged), f"converges like d^{p:.3f}; Richardson-extrapolated"
         )
-    return OneSidedLimit(
-        d,
-        W,
-        met,
-        condition,
-        exponent,
-        W[-1],
-        float(delta[-1]),
-        False,
-        "no convergence detected (differences do not shrink)",
+    return found(
+        W[-1], float(delta[-1]), False, "no convergence detected (differences do not shrink)"
     )
 
 
@@ -263,6 +231,34 @@ def _upstream(scene, x, t, window, args, kw):
     return free_flow(scene.vector_field, x, t, t - window, args, kw)
 
 
+def _synchronised_flow_jacobians(scene, t, xs, args, window, kw):
+    """The time-synchronised flow Jacobian of the *full* system across the impact: from each
+    neighbour's upstream point at t − h to t + h (flow_jacobian's cached program)."""
+    flow_kw = dict(flight_kwargs(kw), direction=1)
+    t_start, t_end = t - window, t + window
+    flow_jac = []
+    for x_ in xs:
+        z, _ = _upstream(scene, jnp.asarray(x_), t, window, args, kw)
+        flow_jac.append(
+            np.asarray(flow_jacobian_impl(scene, z, t_start, t_end, args, "x0", flow_kw).jacobian)
+        )
+    return np.stack(flow_jac)
+
+
+def _a2_verdict(q_w, c_w) -> str:
+    """The reading of the fitted exponent q of ‖W_x‖ ≈ c·d^q, in words."""
+    if q_w > -0.1:
+        return f"bounded (‖W_x‖ ∝ d^{q_w:.3f}): consistent with (A2)"
+    if abs(q_w + 0.5) < 0.1:
+        return (
+            f"square-root singularity: ‖W_x‖ ≈ {c_w:.3g}·d^{q_w:.3f} (Nordmark, −1/2): "
+            "W_i is not differentiable at the point, (A2) fails"
+        )
+    if abs(q_w + 1) < 0.1:
+        return f"‖W_x‖ ≈ {c_w:.3g}·d^{q_w:.3f}: 1/d singularity, (A2) fails"
+    return f"singular, ‖W_x‖ ∝ d^{q_w:.3f}: (A2) fails"
+
+
 def a2_diagnostic(
     scene: Scene,
     surface_index: int,
@@ -323,42 +319,12 @@ def a2_diagnostic(
             for tau, xm in zip(w.tau, w.x_meet, strict=True)
         ]
     )
-    # The time-synchronised flow Jacobian of the *full* system across the impact: from the
-    # neighbour's upstream point at t − h to t + h (flow_jacobian's cached program).
-    flow_kw = dict(flight_kwargs(kw), direction=1)
-    t_start, t_end = t - window, t + window
-    flow_jac = []
-    for x_ in xs:
-        z, _ = _upstream(scene, jnp.asarray(x_), t, window, args, kw)
-        flow_jac.append(
-            np.asarray(flow_jacobian_impl(scene, z, t_start, t_end, args, "x0", flow_kw).jacobian)
-        )
-    flow_jac = np.stack(flow_jac)
+    flow_jac = _synchronised_flow_jacobians(scene, t, xs, args, window, kw)
     w_norms = np.linalg.norm(w.jacobian, ord=2, axis=(1, 2))
     flow_norms = np.linalg.norm(flow_jac, ord=2, axis=(1, 2))
     q_w, c_w = _fit_exponent(d, w_norms)
     q_f, _ = _fit_exponent(d, flow_norms)
-    if q_w > -0.1:
-        verdict = f"bounded (‖W_x‖ ∝ d^{q_w:.3f}): consistent with (A2)"
-    elif abs(q_w + 0.5) < 0.1:
-        verdict = (
-            f"square-root singularity: ‖W_x‖ ≈ {c_w:.3g}·d^{q_w:.3f} (Nordmark, −1/2): "
-            "W_i is not differentiable at the point, (A2) fails"
-        )
-    elif abs(q_w + 1) < 0.1:
-        verdict = f"‖W_x‖ ≈ {c_w:.3g}·d^{q_w:.3f}: 1/d singularity, (A2) fails"
-    else:
-        verdict = f"singular, ‖W_x‖ ∝ d^{q_w:.3f}: (A2) fails"
+    verdict = _a2_verdict(q_w, c_w)
     return A2Diagnostic(
-        np.asarray(x),
-        v,
-        d,
-        w_norms,
-        q_w,
-        flow_norms,
-        q_f,
-        rates,
-        w.jacobian,
-        flow_jac,
-        verdict,
+        np.asarray(x), v, d, w_norms, q_w, flow_norms, q_f, rates, w.jacobian, flow_jac, verdict
     )
