@@ -40,13 +40,13 @@ from . import examples, plot
 from ._compiler import compiler_options, single_run_jit
 from ._conditions import check_conditions
 from ._linearize import (
-    _prepare_point,
-    _w_maps,
     classify_point,
     closed_form_linearization,
     flow_jacobian,
     one_sided_jacobians,
 )
+from ._linearize import prepare_point as _prepare_point
+from ._linearize import w_maps as _w_maps
 from ._orbits.contacts import grazing_branches, orbit_contacts
 from ._orbits.continuation import continue_orbit
 from ._orbits.periodic import find_periodic_orbit

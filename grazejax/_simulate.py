@@ -282,9 +282,9 @@ def _run_compiled(scene, checked, args, options) -> Solution:
 def _traced_numbers(args):
     """`args` with its Python floats as arrays (inputs of the compiled run, so that a new
     value does not compile it again); `args` itself if it has none. Ints, bools and other
-    leaves stay static. (Not `_linearize._args_arrays`, which makes ints floats and floats
-    strong float64 for differentiating with respect to them: here an int may be an index,
-    and a float32 run keeps its weak floats.)"""
+    leaves stay static. (Not `_linearize.common._args_arrays`, which makes ints floats and
+    floats strong float64 for differentiating with respect to them: here an int may be an
+    index, and a float32 run keeps its weak floats.)"""
     leaves, tree = jax.tree.flatten(args)
     if not any(isinstance(leaf, float | np.floating) for leaf in leaves):
         return args
