@@ -71,6 +71,7 @@ from ._piecewise import check_field_continuity as check_field_continuity
 from ._scene import Scene as Scene
 from ._scene import Surface as Surface
 from ._simulate import simulate as simulate
+from ._solution import ImpactLog as ImpactLog
 from ._solution import SimulationError as SimulationError
 from ._solution import Solution as Solution
 from ._status import ContinuationStatus as ContinuationStatus

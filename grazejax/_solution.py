@@ -8,14 +8,39 @@ from jaxtyping import Array, Bool, Float, Int
 from ._status import ImpactKind, Status
 
 
-class Solution(eqx.Module):
+class ImpactLog(eqx.Module):
+    r"""The impact log that [`grazejax.Solution`][] and [`grazejax.Orbit`][] both carry.
+
+    At an impact time θ, `impact_pre` is x(θ) and `impact_post` is x(θ+) = J(x(θ)) (the
+    paper's left-continuous convention). The log has `max_impacts` rows; rows past
+    `num_impacts` are padded with NaN (times, states), `-1` (surface) and
+    `ImpactKind.NONE`.
+
+    **Fields:**
+
+    - `num_impacts`: number of rows used.
+    - `impact_times`: the times θ.
+    - `impact_pre`, `impact_post`: the states before and after each jump.
+    - `impact_surface`: the index of the surface piece in `scene.surfaces`.
+    - `impact_kind`: an [`grazejax.ImpactKind`][] code (transversal, grazing, ...).
+    """
+
+    num_impacts: Int[Array, ""]
+    impact_times: Float[Array, " max_impacts"]
+    impact_pre: Float[Array, "max_impacts n"]
+    impact_post: Float[Array, "max_impacts n"]
+    impact_surface: Int[Array, " max_impacts"]
+    impact_kind: Int[Array, " max_impacts"]
+
+
+class Solution(ImpactLog):
     r"""The result of [`grazejax.simulate`][]. Under `jax.vmap` every field gains a
     leading batch axis.
 
     Solutions are left-continuous (the paper's convention): at an impact time θ,
-    `impact_pre` is x(θ) and `impact_post` is x(θ+) = J(x(θ)). The impact log has
-    `max_impacts` rows; rows past `num_impacts` are padded with NaN (times, states),
-    `-1` (surface) and `ImpactKind.NONE`.
+    `impact_pre` is x(θ) and `impact_post` is x(θ+) = J(x(θ)). The impact log
+    ([`grazejax.ImpactLog`][]'s fields) has `max_impacts` rows; rows past `num_impacts` are
+    padded with NaN (times, states), `-1` (surface) and `ImpactKind.NONE`.
 
     **Fields:**
 
@@ -39,12 +64,6 @@ class Solution(eqx.Module):
 
     t_final: Float[Array, ""]
     x_final: Float[Array, " n"]
-    num_impacts: Int[Array, ""]
-    impact_times: Float[Array, " max_impacts"]
-    impact_pre: Float[Array, "max_impacts n"]
-    impact_post: Float[Array, "max_impacts n"]
-    impact_surface: Int[Array, " max_impacts"]
-    impact_kind: Int[Array, " max_impacts"]
     status: Int[Array, ""]
     zeno_time: Float[Array, ""]
     num_steps: Int[Array, ""]

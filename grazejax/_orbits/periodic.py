@@ -52,6 +52,7 @@ from jaxtyping import Array, Bool, Complex, Float, Int
 from .._adjoint import loop_kinds
 from .._geometry import FLOOR_ULPS, on_surface
 from .._scene import Scene
+from .._solution import ImpactLog
 from .._status import Status, StatusCode
 from .._tangents import with_forward_tangents, without_derivative
 from .._validate import is_concrete
@@ -157,7 +158,7 @@ class OrbitStatus(StatusCode):
 # --------------------------------------------------------------------------------------
 
 
-class Orbit(eqx.Module):
+class Orbit(ImpactLog):
     r"""A periodic orbit found by [`grazejax.find_periodic_orbit`][].
 
     **Fields:**
@@ -167,7 +168,7 @@ class Orbit(eqx.Module):
     - `period`: the period T (the paper's 𝒯, or ω).
     - `num_impacts`: impacts per period.
     - `impact_times`, `impact_pre`, `impact_post`, `impact_surface`, `impact_kind`: the
-      impacts in (t0, t0 + T], as in [`grazejax.Solution`][] (NaN-padded to `max_impacts`).
+      impacts in (t0, t0 + T], an [`grazejax.ImpactLog`][] (NaN-padded to `max_impacts`).
     - `monodromy`: U(T), the Jacobian of the period map x0 ↦ P(x0, T) (module docstring).
     - `multipliers`: eigenvalues of `monodromy`, complex, sorted by modulus, descending.
       For an autonomous orbit one of them is the trivial multiplier 1.
@@ -198,12 +199,6 @@ class Orbit(eqx.Module):
     x0: Float[Array, " n"]
     t0: Float[Array, ""]
     period: Float[Array, ""]
-    num_impacts: Int[Array, ""]
-    impact_times: Float[Array, " max_impacts"]
-    impact_pre: Float[Array, "max_impacts n"]
-    impact_post: Float[Array, "max_impacts n"]
-    impact_surface: Int[Array, " max_impacts"]
-    impact_kind: Int[Array, " max_impacts"]
     monodromy: Float[Array, "n n"]
     multipliers: Complex[Array, " n"]
     poincare_matrix: Float[Array, "n n"]
