@@ -1369,3 +1369,7 @@ def a2_diagnostic(
         flow_jac,
         verdict,
     )
+
+
+prepare_point = _prepare_point
+w_maps = _w_maps
