@@ -1,12 +1,15 @@
-"""The paper's runs: batched, chunked simulation with reusable compiled functions, and
-JSON-ready summaries of the runs.
+"""The paper's runs: batched, chunked simulation through `grazejax.sweep`, and JSON-ready
+summaries of the runs.
 
-Every figure and claim simulates through `run_batch`: one
-compiled `jit(vmap(simulate))` per example and `RunConfig`, so that the runs of one example
-compile once. The ε = 1e-4 damping of `ex1dof` acts on a time scale 1/(ε(1+μ)²) ≈ 10⁴, so
-its runs are long (up to 10⁵ time units); they run in chunks that restart from the last
-state (the per-step cost of `simulate` grows with `max_impacts` and the `saveat` length, so
-small buffers per chunk are much faster than one big run).
+Every figure and claim simulates through `run_batch`, which calls `sweep` (plain `vmap`,
+`balance="none"`: most batches are two or three starts, which gain nothing from refilling
+and compile faster without the pool) with one batch width per example and `RunConfig`, so
+that the runs of one example reuse one compiled program.
+
+The ε = 1e-4 damping of `ex1dof` acts on a time scale 1/(ε(1+μ)²) ≈ 10⁴, so its runs are
+long (up to 10⁵ time units); they run in chunks that restart from the last state (the
+per-step cost of `simulate` grows with `max_impacts` and the `saveat` length, so small
+buffers per chunk are much faster than one big run).
 """
 
 from __future__ import annotations
@@ -17,14 +20,12 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from .. import examples, plot
-from .._compiler import compiler_options
-from .._simulate import simulate
 from .._solution import Solution
 from .._status import ImpactKind, Status
+from .._sweep import sweep
 
 TWO_PI = 2 * math.pi
 
@@ -62,24 +63,6 @@ def paper_args(name: str, *a, **kw):
     return examples.PAPER_SCENES[name][1](*a, **kw)
 
 
-@functools.cache
-def _compiled(scene_name: str, cfg: RunConfig, batch_args: bool):
-    """jit(vmap(simulate)) over starts (and args if `batch_args`), times traced."""
-    scene = paper_scene(scene_name)
-
-    def one(x0, args, t0, t1, ts):
-        return simulate(
-            scene, x0, t0, t1, args, rtol=cfg.rtol, atol=cfg.atol,
-            max_impacts=cfg.max_impacts, max_steps=cfg.max_steps, saveat=ts, direction=1,
-        )
-
-    in_axes = (0, 0 if batch_args else None, 0, 0, 0 if cfg.n_save else None)
-    # Batches of 2-3 starts compile with the options for one trajectory (most of their
-    # time is the compile); the μ sweep with the batched ones (`_compiler`).
-    options = compiler_options(batched=cfg.lanes == 0)
-    return jax.jit(jax.vmap(one, in_axes=in_axes), compiler_options=options)
-
-
 def _pad(rows: list[np.ndarray], width: int, fill=np.nan, dtype=float) -> np.ndarray:
     """Stack ragged per-lane arrays along a new first axis, padding to `width`."""
     shape = (len(rows), width) + (rows[0].shape[1:] if rows and rows[0].ndim > 1 else ())
@@ -108,7 +91,6 @@ def run_batch(
     `cfg.n_save` uniform points per chunk. Logs and saves are stitched per lane and padded
     with NaN; `num_steps` are summed.
     """
-    fn = _compiled(scene_name, cfg, batch_args)
     x_now = np.atleast_2d(np.array(starts, dtype=float))
     n_real = x_now.shape[0]
     if cfg.lanes and not batch_args and n_real < cfg.lanes:
@@ -131,24 +113,45 @@ def run_batch(
                 raise RuntimeError("run_batch made no progress (internal error)")
             t0s = np.where(active, t_now, end - 1.0)
             grids = _save_grids(cfg, saveat, t0s, end)
-            sol = fn(
-                jnp.asarray(x_now), args, jnp.asarray(t0s), jnp.full(batch, end),
-                None if grids is None else jnp.asarray(grids),
-            )
-            sol = jax.tree.map(np.asarray, sol)
-            for i in np.flatnonzero(active):
-                lanes.append(i, sol, t0s[i], saved=grids is not None)
-                code = int(sol.status[i])
-                t_reached = float(sol.t_final[i])
+            for i, sol, row in _sweep(scene_name, cfg, x_now, args, t0s, end, grids, active,
+                                      batch_args):
+                lanes.append(i, sol, row, t0s[i], saved=grids is not None)
+                code = int(sol.status[row])
+                t_reached = float(sol.t_final[row])
                 if code == Status.SUCCESS:
                     t_now[i] = end
                 elif code == Status.MAX_IMPACTS and t_reached > t_now[i]:
                     t_now[i] = t_reached
                 else:
                     stopped[i], status[i], t_now[i] = True, code, t_reached
-                x_now[i] = sol.x_final[i]
+                x_now[i] = sol.x_final[row]
     sol = lanes.solution(t_now, x_now, status, saved=bool(cfg.n_save))
     return jax.tree.map(lambda leaf: leaf[:n_real], sol)
+
+
+def _sweep(scene_name: str, cfg: RunConfig, x_now, args, t0s, end: float, grids, active,
+           batch_args: bool):
+    """One chunk of the active lanes through `grazejax.sweep`: `(lane, sol, row)` for each.
+
+    `sweep` takes one start time per call, so the lanes run in groups of equal start time
+    (one group unless some lane resumed after `MAX_IMPACTS`). Each call has the width of the
+    whole batch (padded with copies of a lane of the group): one compiled program.
+    """
+    scene = paper_scene(scene_name)
+    batch = len(t0s)
+    flags = jax.tree.map(lambda _: batch_args, args)
+    for t0 in np.unique(t0s[active]):
+        members = np.flatnonzero(active & (t0s == t0))
+        index = np.concatenate([members, np.full(batch - len(members), members[0])])
+        lane_args = (jax.tree.map(lambda leaf, index=index: np.asarray(leaf)[index], args)
+                     if batch_args else args)
+        sol = sweep(
+            scene, x_now[index], float(t0), end, lane_args, args_batched=flags, balance="none",
+            progress=False, rtol=cfg.rtol, atol=cfg.atol, max_impacts=cfg.max_impacts,
+            max_steps=cfg.max_steps, saveat=None if grids is None else grids[members[0]],
+        )
+        for row, i in enumerate(members):
+            yield i, sol, row
 
 
 def _save_grids(cfg: RunConfig, saveat, t0s, end: float) -> np.ndarray | None:
@@ -185,20 +188,20 @@ class _Stitched:
         self.steps = np.zeros(batch, dtype=np.int64)
         self.accepted = np.zeros(batch, dtype=np.int64)
 
-    def append(self, i: int, sol: Solution, t0: float, *, saved: bool) -> None:
-        """Lane `i` of one chunk's batched `sol`, started at `t0`."""
-        k = int(sol.num_impacts[i])
+    def append(self, i: int, sol: Solution, row: int, t0: float, *, saved: bool) -> None:
+        """Lane `i`'s chunk: row `row` of the batched `sol`, started at `t0`."""
+        k = int(sol.num_impacts[row])
         for key, field in _LOG_FIELDS:
-            self.logs[key][i].append(getattr(sol, field)[i][:k])
+            self.logs[key][i].append(getattr(sol, field)[row][:k])
         if saved:
-            ts_i, xs_i = sol.ts[i], sol.xs[i]
+            ts_i, xs_i = sol.ts[row], sol.xs[row]
             ok = np.isfinite(ts_i) & np.all(np.isfinite(xs_i), axis=-1)
             if t0 > 0:  # the chunk's start state was saved by the chunk before
                 ok &= ts_i > t0
             self.ts[i].append(ts_i[ok])
             self.xs[i].append(xs_i[ok])
-        self.steps[i] += int(sol.num_steps[i])
-        self.accepted[i] += int(sol.num_accepted_steps[i])
+        self.steps[i] += int(sol.num_steps[row])
+        self.accepted[i] += int(sol.num_accepted_steps[row])
 
     def solution(self, t_final, x_final, status, *, saved: bool) -> Solution:
         """One batched `Solution`: the chunks concatenated, lanes padded with NaN."""
