@@ -29,8 +29,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .runs import TWO_PI
-
 CLAIM_TOL = {"rtol": 1e-10, "atol": 1e-12}  # one tolerance: each compiled program once
 RTOL = CLAIM_TOL["rtol"]
 SQRT_HALF = 1 / math.sqrt(2)
@@ -65,7 +63,7 @@ PRINTED = {
     "A2": True,  # (A2) holds
     "A3": True,  # (A3) holds
     "exnonaxial_axial": False,  # x* is non-axial
-    "ex1dof_period": TWO_PI,  # Ψ_μ is 2π-periodic [eq. periodic1]
+    "ex1dof_period": 2 * math.pi,  # Ψ_μ is 2π-periodic [eq. periodic1]
     "ex1dof_psi0_contact": ("GAMMA", True, (0.0, 0.0)),  # γ, axial, at x* = (0, 0)
     "ex1dof_A6_nonzero": True,  # (A6): the determinant is non-zero
     "ex1dof_branches": 2,  # (A4): m = 2 branches
@@ -140,14 +138,14 @@ def claim_verdict(facts: Sequence[dict]) -> str:
     return "agrees" if all(f["agrees"] for f in facts) else "differs"
 
 
-def fact_text(fact: dict) -> str:
-    """A fact in one line: what was compared and how (for report.md)."""
-    if fact["tolerance"] is None:
-        sign = "=" if fact["agrees"] else "≠"
-        return f"{fact['name']}: {fact['paper']} {sign} {fact['grazejax']}"
-    sign = "≤" if fact["agrees"] else ">"
-    return (f"{fact['name']}: |printed − computed| = {fact['difference']:.2g} {sign} "
-            f"{fact['tolerance']:.2g}")
+def fact_text(item: dict) -> str:
+    """A fact (`fact`) in one line: what was compared and how (for report.md)."""
+    if item["tolerance"] is None:
+        sign = "=" if item["agrees"] else "≠"
+        return f"{item['name']}: {item['paper']} {sign} {item['grazejax']}"
+    sign = "≤" if item["agrees"] else ">"
+    return (f"{item['name']}: |printed − computed| = {item['difference']:.2g} {sign} "
+            f"{item['tolerance']:.2g}")
 
 
 def claim_row(id_: str, example: str, claim: str, *, paper: str, grazejax: str, check: str,
