@@ -22,7 +22,6 @@ BENCH_SCRIPTS = {
     "sweep": "bench_sweep.py",
     "gradients": "bench_gradients.py",
 }
-DEFAULT_OUT = "grazejax-output"  # kept equal to grazejax._reproduce.DEFAULT_OUT
 # JAX's persistent compilation cache for `grazejax reproduce`: a folder, or "off".
 CACHE_ENV = "GRAZEJAX_COMPILATION_CACHE"
 
@@ -56,7 +55,9 @@ def _enable_compilation_cache() -> None:
 
 
 def _figure_help() -> str:
-    from ._reproduce import CLAIM_GROUPS, CLAIMS, FIGURES
+    from .paper import CLAIM_GROUPS
+    from .paper.figures import FIGURES
+    from .paper.reproduce import CLAIMS
 
     lines = []
     for name, spec in FIGURES.items():
@@ -70,6 +71,8 @@ def _figure_help() -> str:
 
 
 def _build_parser() -> argparse.ArgumentParser:
+    from .paper.reproduce import DEFAULT_OUT
+
     parser = argparse.ArgumentParser(
         prog="grazejax",
         description="grazejax: differentiable simulation of impact systems with grazing.",
@@ -200,7 +203,7 @@ def _bench(ns) -> int:
 
 
 def _reproduce(ns, parser) -> int:
-    from . import _reproduce as rp
+    from .paper import reproduce as rp
 
     if ns.list:
         print(_figure_help())

@@ -1,6 +1,7 @@
 """Smoke tests of `grazejax reproduce` (the CLI, in-process) and of `grazejax.plot`."""
 
 import json
+import sys
 
 import numpy as np
 import pytest
@@ -85,15 +86,18 @@ def test_flight_segments_break_at_impacts():
     np.testing.assert_allclose(images[:, 0], images[:, 1])
 
 
-def test_default_out_matches():
-    from grazejax import _reproduce
+def test_missing_scipy_names_the_extra(monkeypatch):
+    from grazejax.paper.optional import scipy_module
 
-    assert _cli.DEFAULT_OUT == _reproduce.DEFAULT_OUT
+    monkeypatch.setitem(sys.modules, "scipy.integrate", None)  # as if SciPy were missing
+    with pytest.raises(ImportError, match=r"pip install 'grazejax\[paper\]'"):
+        scipy_module("integrate")
 
 
 @pytest.mark.parametrize("name", ["orbex2", "ex1dof"])
 def test_example_names_select_their_figures(name):
-    from grazejax._reproduce import FIGURES, resolve_names
+    from grazejax.paper.figures import FIGURES
+    from grazejax.paper.reproduce import resolve_names
 
     chosen = resolve_names([name])
     assert chosen and all(FIGURES[f].scene == name for f in chosen)
@@ -142,34 +146,34 @@ def _check_rows(rows):
 
 def test_fact_rule():
     """Numbers: max |printed − computed| over the entries ≤ tolerance; structural: ==."""
-    from grazejax._reproduce import _fact, _half_unit, _printed_tol, claim_verdict
+    from grazejax.paper.table import claim_verdict, fact, half_unit, printed_tol
 
-    assert _half_unit("0.939") == pytest.approx(5e-4)
-    assert _half_unit("-0.15") == pytest.approx(5e-3)
-    assert _half_unit("2") == 0.5 and _half_unit("1.5e-3") == pytest.approx(5e-5)
-    assert _printed_tol([[0.939, -0.0001407], [-0.0003165, 1.0]]) == pytest.approx(5e-4)
-    assert _printed_tol([0.0, 1.0], exact=1e-7) == 1e-7  # whole numbers are exact
+    assert half_unit("0.939") == pytest.approx(5e-4)
+    assert half_unit("-0.15") == pytest.approx(5e-3)
+    assert half_unit("2") == 0.5 and half_unit("1.5e-3") == pytest.approx(5e-5)
+    assert printed_tol([[0.939, -0.0001407], [-0.0003165, 1.0]]) == pytest.approx(5e-4)
+    assert printed_tol([0.0, 1.0], exact=1e-7) == 1e-7  # whole numbers are exact
     # A printed 0.939 agrees with every value that rounds to it, and only those.
-    tol = _printed_tol(0.939)
-    assert _fact("ρ", 0.939, 0.9394, tol)["agrees"]
-    assert not _fact("ρ", 0.939, 0.9396, tol)["agrees"]
-    assert not _fact("ρ", 0.939, 0.99937, tol)["agrees"]
+    tol = printed_tol(0.939)
+    assert fact("ρ", 0.939, 0.9394, tol)["agrees"]
+    assert not fact("ρ", 0.939, 0.9396, tol)["agrees"]
+    assert not fact("ρ", 0.939, 0.99937, tol)["agrees"]
     # Matrices: the worst entry decides.
     printed = np.array([[1.0, 0.0], [0.5, 2.0]])
-    assert _fact("M", printed, printed + 1e-9, 1e-8)["agrees"]
+    assert fact("M", printed, printed + 1e-9, 1e-8)["agrees"]
     bad = printed.copy()
     bad[1, 0] += 2e-8
-    fact = _fact("M", printed, bad, 1e-8)
-    assert not fact["agrees"] and fact["difference"] == pytest.approx(2e-8)
-    assert not _fact("M", printed, printed[0], 1.0)["agrees"]  # shape mismatch
-    assert not _fact("x", 0.0, float("nan"), 1.0)["agrees"]  # NaN never agrees
+    worst = fact("M", printed, bad, 1e-8)
+    assert not worst["agrees"] and worst["difference"] == pytest.approx(2e-8)
+    assert not fact("M", printed, printed[0], 1.0)["agrees"]  # shape mismatch
+    assert not fact("x", 0.0, float("nan"), 1.0)["agrees"]  # NaN never agrees
     # Structural facts: equality, no tolerance.
-    assert _fact("kind", ("GAMMA", True), ("GAMMA", True))["agrees"]
-    assert not _fact("kind", ("GAMMA", True), ("ALPHA", True))["agrees"]
-    assert _fact("count", 2, np.int64(2))["agrees"] and not _fact("count", 2, 3)["agrees"]
-    facts = [_fact("count", 2, 2), _fact("ρ", 0.939, 0.9391, tol)]
+    assert fact("kind", ("GAMMA", True), ("GAMMA", True))["agrees"]
+    assert not fact("kind", ("GAMMA", True), ("ALPHA", True))["agrees"]
+    assert fact("count", 2, np.int64(2))["agrees"] and not fact("count", 2, 3)["agrees"]
+    facts = [fact("count", 2, 2), fact("ρ", 0.939, 0.9391, tol)]
     assert claim_verdict(facts) == "agrees"
-    assert claim_verdict(facts + [_fact("holds", True, False)]) == "differs"
+    assert claim_verdict(facts + [fact("holds", True, False)]) == "differs"
     with pytest.raises(ValueError, match="at least one fact"):
         claim_verdict([])
 
@@ -177,12 +181,12 @@ def test_fact_rule():
 def test_reason_must_fit_the_computed_verdict():
     """A reason typed in for a row whose numbers agree (or none for one that differs) is
     flagged, and the reason is shown only for "differs"."""
-    from grazejax._reproduce import _claim, _fact
+    from grazejax.paper.table import claim_row, fact
 
     def row(computed, reason):
-        return _claim("x.y", "x", "claim", paper="1", grazejax=str(computed), check="1",
+        return claim_row("x.y", "x", "claim", paper="1", grazejax=str(computed), check="1",
                       check_method="closed form", difference=0.0, tolerance=1.0,
-                      facts=[_fact("value", 1.0, computed, 1e-6)], reason=reason)
+                      facts=[fact("value", 1.0, computed, 1e-6)], reason=reason)
 
     good = row(1.0, "")
     assert good["verdict"] == "agrees" and good["reason_consistent"]
@@ -198,17 +202,19 @@ def test_reason_must_fit_the_computed_verdict():
 def test_claims_cheap_groups_and_error_rows(monkeypatch):
     """The cheap groups in-process, a failing group reported as error rows instead of a
     crash, and verdicts that flip when a printed value is changed."""
-    from grazejax import _reproduce
+    from grazejax import paper
+    from grazejax.paper.report import claims_markdown
+    from grazejax.paper.table import PRINTED, ClaimGroup
 
     def broken(ctx):
         raise ValueError("boom")
 
-    group = _reproduce.CLAIM_GROUPS["smalldisc"]
-    monkeypatch.setitem(_reproduce.CLAIM_GROUPS, "smalldisc",
-                        _reproduce.ClaimGroup(group.name, group.example, group.claims, broken))
+    group = paper.CLAIM_GROUPS["smalldisc"]
+    monkeypatch.setitem(paper.CLAIM_GROUPS, "smalldisc",
+                        ClaimGroup(group.name, group.example, group.claims, broken))
     lines = []
-    claims = _reproduce.compute_claims(["orbex2-psi", "smalldisc", "conditions"],
-                                       progress=lines.append)
+    claims = paper.compute_claims(["orbex2-psi", "smalldisc", "conditions"],
+                                  progress=lines.append)
     rows = {r["id"]: r for r in claims["rows"]}
     assert rows["smalldisc.cycle"]["verdict"] == "error"
     assert "ValueError: boom" in rows["smalldisc.cycle"]["error"]
@@ -230,23 +236,23 @@ def test_claims_cheap_groups_and_error_rows(monkeypatch):
     assert claims["summary"]["errors"] == 1 and claims["summary"]["reasons_inconsistent"] == []
     assert any("[claims 2/3] smalldisc" in line for line in lines)
     assert any("FAILED: ValueError: boom" in line for line in lines)
-    md = "\n".join(_reproduce._claims_markdown(claims))
+    md = "\n".join(claims_markdown(claims))
     assert "| smalldisc.cycle |" in md and "**error**" in md
     assert "y2 after the Γ2 jump: \\|printed − computed\\|" in md
     # Verdicts are derived: print the computed value and the row agrees (its typed-in
     # reason is then stale and flagged); print another type and the row differs (no
     # reason: flagged too).
-    monkeypatch.setitem(_reproduce._PRINTED, "orbex2_psi_return", back["grazejax"])
-    monkeypatch.setitem(_reproduce._PRINTED, "orbex2_ystar", ("ALPHA", True))
+    monkeypatch.setitem(PRINTED, "orbex2_psi_return", back["grazejax"])
+    monkeypatch.setitem(PRINTED, "orbex2_ystar", ("ALPHA", True))
     lines = []
-    again = _reproduce.compute_claims(["orbex2-psi"], progress=lines.append)
+    again = paper.compute_claims(["orbex2-psi"], progress=lines.append)
     flipped = {r["id"]: r for r in again["rows"]}
     assert flipped["orbex2.psi-periodic"]["verdict"] == "agrees"
     assert flipped["orbex2.ystar-type"]["verdict"] == "differs"
     assert again["summary"]["reasons_inconsistent"] == ["orbex2.ystar-type",
                                                          "orbex2.psi-periodic"]
     assert any("reason does not fit" in line for line in lines)
-    assert "the typed-in reason does not fit" in "\n".join(_reproduce._claims_markdown(again))
+    assert "the typed-in reason does not fit" in "\n".join(claims_markdown(again))
 
 
 @pytest.mark.slow  # the whole table: about 2-3 minutes on two cores

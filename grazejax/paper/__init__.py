@@ -6,6 +6,11 @@ paper, grazejax's value, an independent check and a verdict with its reason); se
 [the paper audit](audit.md) for what a row holds. The notebook
 `notebooks/02-paper-walkthrough.ipynb` calls it group by group.
 
+The subpackage's modules: `runs` (the batched, chunked simulations), `figures` (with one
+`figures_*` module per example), `table` (printed values, facts, verdicts), `claims` (with
+one `claims_*` module per example), `report` (report.md and report.json) and `reproduce`
+(what `grazejax reproduce` runs).
+
 **Example:**
 
 ```python
@@ -18,8 +23,8 @@ for row in table["rows"]:
 ```
 """
 
-from ._reproduce import CLAIM_GROUPS as CLAIM_GROUPS
-from ._reproduce import CLAIM_TOL as CLAIM_TOL
-from ._reproduce import compute_claims as compute_claims
+from .claims import CLAIM_GROUPS as CLAIM_GROUPS
+from .claims import compute_claims as compute_claims
+from .table import CLAIM_TOL as CLAIM_TOL
 
 __all__ = ["CLAIM_GROUPS", "CLAIM_TOL", "compute_claims"]
