@@ -56,7 +56,7 @@ def _combination(y0, weights, total, ks, rises):
     """y0 + Σ_j w_j k_j, summed relative to the first stage:
     y0 + (total·k₀ + Σ_{j≥1} w_j (k_j − k₀)), where `total` is Σ_j w_j as the tableau means
     it (c_i for a stage, 1 for the solution, 0 for the error estimate) and
-    `rises[j] = k_j − k₀`. `y0=None`: the increment alone.
+    `rises[j] = k_j − k₀` (computed as h·(f_j − f₀)). `y0=None`: the increment alone.
 
     A tableau's weights are not exact in binary and their sum in floating point misses c_i
     (or 1) by ulps, so a constant field — every stage equal — gains the same relative error
@@ -131,7 +131,11 @@ class UnrolledERK(diffrax.AbstractAdaptiveSolver):
             needs_f0 = first_step | made_jump
             f0 = jnp.where(needs_f0, terms.vf(t0, y0, args), f0)
         ks = [terms.prod(f0, dt)]
-        rises = [None]  # k_j − k₀
+        # k_j − k₀ as h·(f_j − f₀): the same in every program. (Written as h·f_j − h·f₀,
+        # XLA's simplifier may factor it in one program and not in another, depending on
+        # who else reads h·f_j: a sweep's lanes then differed in the last bit from the same
+        # lanes under plain `vmap`.)
+        rises = [None]
         fi = f0
         yi = y0
         for i in range(1, num_stages):
@@ -140,7 +144,7 @@ class UnrolledERK(diffrax.AbstractAdaptiveSolver):
             ti = t1 if ci == 1 else t0 + ci * dt
             fi = terms.vf(ti, yi, args)
             ks.append(terms.prod(fi, dt))
-            rises.append(ks[-1] - ks[0])
+            rises.append(terms.prod(fi - f0, dt))
         y1 = yi if tableau.ssal else _combination(y0, tableau.b_sol, 1.0, ks, rises)
         y_error = _combination(None, tableau.b_error, 0.0, ks, rises)
         if y_error is None:
@@ -149,7 +153,8 @@ class UnrolledERK(diffrax.AbstractAdaptiveSolver):
         # Stages that only the dense output reads (`Vern9`'s interpolant).
         for ci, row in getattr(type(self.solver), "dense_stages", ()):
             yi = _combination(y0, row, float(ci), ks, rises)
-            ks.append(terms.prod(terms.vf(t0 + float(ci) * dt, yi, args), dt))
-            rises.append(ks[-1] - ks[0])
+            fi = terms.vf(t0 + float(ci) * dt, yi, args)
+            ks.append(terms.prod(fi, dt))
+            rises.append(terms.prod(fi - f0, dt))
         dense_info = dict(y0=y0, y1=y1, k=jnp.stack(ks))
         return y1, y_error, dense_info, new_state, diffrax.RESULTS.successful
