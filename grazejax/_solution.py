@@ -75,6 +75,12 @@ class Solution(ImpactLog):
     def succeeded(self) -> Bool[Array, ""]:
         return self.status == Status.SUCCESS
 
+    @property
+    def ys(self) -> Float[Array, "num_saves n"] | None:
+        """The saved states under Diffrax's name: the same array as `xs` (grazejax names
+        states x, as the paper does). Diffrax's `result` is `status` here."""
+        return self.xs
+
     def summary(self, max_lanes: int = 10) -> str:
         """A short human-readable account of the run (outside `jit`).
 

@@ -1,4 +1,4 @@
-"""What users of Diffrax expect to work: `diffrax.SaveAt`, `throw=True` (outside and inside
+"""What users of Diffrax expect to work: `diffrax.SaveAt`, `Solution.ys`, `throw=True` (outside and inside
 jit, single runs and batches), `Solution.summary()` on a batch, a progress bar that counts
 lanes, and `grazejax bench` naming the extra it needs."""
 
@@ -28,6 +28,16 @@ def test_saveat_ts_equals_plain_times():
     wrapped = gj.simulate(BALL, [1.0, 0.0], 0.0, 1.0, ARGS, saveat=diffrax.SaveAt(ts=ts), **TOL)
     np.testing.assert_array_equal(wrapped.ts, plain.ts)
     np.testing.assert_array_equal(wrapped.xs, plain.xs)
+
+
+def test_ys_is_diffraxs_name_for_the_saved_states():
+    ts = jnp.linspace(0.0, 1.0, 6)
+    sol = gj.simulate(BALL, [1.0, 0.0], 0.0, 1.0, ARGS, saveat=diffrax.SaveAt(ts=ts), **TOL)
+    assert sol.ys is sol.xs and sol.ys.shape == (6, 2)
+    batch = jax.vmap(lambda h: gj.simulate(BALL, jnp.stack([h, 0.0]), 0.0, 1.0, ARGS,
+                                           saveat=ts, **TOL))(jnp.array([1.0, 2.0]))
+    assert batch.ys.shape == (2, 6, 2)
+    assert gj.simulate(BALL, [1.0, 0.0], 0.0, 1.0, ARGS).ys is None
 
 
 def test_saveat_t0_ts_t1_in_diffrax_order():
