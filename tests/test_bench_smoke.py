@@ -253,12 +253,16 @@ def test_gradients_benchmark_smoke(tmp_path):
 
 
 def test_compile_benchmark_smoke(tmp_path):
-    """benchmarks/bench_compile.py --smoke: simulate's compile time in a fresh process
-    without a compilation cache; the table and the JSON are written."""
+    """benchmarks/bench_compile.py --smoke: simulate's compile time and Diffrax's base in
+    fresh processes without a compilation cache; the table (with the ratio) and the JSON
+    are written."""
     bench_compile = _benchmark_module("bench_compile")
-    (row,) = bench_compile.main(["--smoke", "--out", str(tmp_path)])
-    assert row["case"] == "simulate" and row["first_s"] > row["second_s"] > 0
-    assert row["compile_s"] == pytest.approx(row["first_s"] - row["second_s"])
+    base, row = bench_compile.main(["--smoke", "--out", str(tmp_path)])
+    assert base["case"] == "diffeqsolve" and row["case"] == "simulate"
+    for r in (base, row):
+        assert r["first_s"] > r["second_s"] > 0
+        assert r["compile_s"] == pytest.approx(r["first_s"] - r["second_s"])
     runs = json.loads((tmp_path / "compile.json").read_text())["runs"]
-    assert [r["case"] for r in runs] == ["simulate"]
-    assert "| `simulate` |" in (tmp_path / "compile.md").read_text()
+    assert [r["case"] for r in runs] == ["diffeqsolve", "simulate"]
+    ratio = f"{row['compile_s'] / base['compile_s']:.2f}×"
+    assert f"| {ratio} |" in (tmp_path / "compile.md").read_text()
