@@ -33,7 +33,7 @@ def iteration_counts(method):
     import jax.numpy as jnp
 
     import grazejax as gj
-    import grazejax._events as events
+    import grazejax._loop.events as events
     from grazejax import _roots
     from grazejax import examples as ex
 

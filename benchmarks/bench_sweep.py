@@ -29,7 +29,7 @@ read (see benchmarks/README.md).
    dropped `balance="presort"`), and `refill` (the default: the refilling pool).
    **Utilisation** = Σ lane steps / Σ over loop iterations of the vmap width: the fraction
    of lane-steps that do useful work. For the vmap variants it is exact; for the pool it is
-   computed by replaying the pool's schedule (`pool_schedule`, which mirrors `_pool.py`) on
+   computed by replaying the pool's schedule (`pool_schedule`, which mirrors `grazejax/_loop/pool.py`) on
    the lanes' true step counts. 1 / utilisation(none) is the gain an ideal balancer with the
    same cost per lane-step would get.
 3. **Memory**: XLA's buffer assignment for one chunk (`compiled.memory_analysis()`:
@@ -52,7 +52,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import grazejax as gj
-import grazejax._pool as _pool
+import grazejax._loop.pool as _pool
 import grazejax._sweep as _sweep
 from grazejax import examples as ex
 

@@ -1,6 +1,6 @@
 """One contact geometry: what "on the surface", "tangential", "the floor" and J⁻¹ mean.
 
-Each concept is defined here once and used by the simulator (`_loop`, `_events`) and by
+Each concept is defined here once and used by the simulator (`_loop`) and by
 the analysis modules, so that a point the simulator calls a grazing contact is the point the
 analysis calls one, to the same floor.
 

@@ -11,7 +11,7 @@ Design (and why it is not a loop of `diffeqsolve` calls with a `diffrax.Event`):
   and start another: it resets the state in place. Under `jax.vmap` this matters: nested
   loops (impacts outside, steps inside) make every lane wait for the slowest lane's flight
   at *every* impact; a flat loop only waits once, for the slowest lane overall.
-- **Events located exactly, never missed.** `_events.py` tests every accepted step for
+- **Events located exactly, never missed.** `_loop/events.py` tests every accepted step for
   crossings *and* in-step dips (diffrax #507), resolves several surfaces in time order
   (not pytree order, #639), and guards restarts on a surface.
 - **The event state comes from a real step, not the interpolant.** When a contact is found

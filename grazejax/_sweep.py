@@ -13,7 +13,7 @@ lanes needs:
 - **the slowest-lane problem**: a vmapped while loop runs until its slowest lane finishes
   (docs/design.md, *Batches*), so a chunk that mixes 2-impact and 200-impact lanes costs as if all had
   200. With `balance="refill"` (the default) each device runs its share of a chunk on a pool
-  of `pool_size` lane slots (`_pool.py`): whenever an eighth of the slots have finished, their
+  of `pool_size` lane slots (`_loop/pool.py`): whenever an eighth of the slots have finished, their
   results are written out and the next lanes of the queue are loaded into them; at the end
   the last few running lanes move to a pool an eighth as wide. The pool runs the very loop
   of `simulate` (`_loop.program.build_program`: same `init`, same `step`, same `finish`), so a
@@ -41,7 +41,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from ._adjoint import loop_kinds
 from ._compiler import compiler_options
-from ._pool import run_pool
+from ._loop.pool import run_pool
 from ._scene import Scene
 from ._simulate import _throw_if_failed, prepare, simulate
 from ._solution import Solution

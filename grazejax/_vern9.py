@@ -19,7 +19,7 @@ decimals; the remainders are below 1e-35) so that y(0) = y₀ and y(1) = y₀ + 
 without cancellation: in the published monomial form the weights' coefficients reach
 1.3e4 and their sum at θ = 1 misses bᵢ by 1.4e-12 in double precision.
 
-`Vern9` runs its stages as straight-line code (`_unrolled.UnrolledERK`), with or without
+`Vern9` runs its stages as straight-line code (`_loop.unrolled.UnrolledERK`), with or without
 `grazejax.simulate`. The tests check the tableau's order conditions, the measured orders
 of the step (9) and of the interpolant (8), and simulations against closed forms
 (`tests/test_vern9.py`).
@@ -31,8 +31,8 @@ import diffrax
 import jax.numpy as jnp
 import numpy as np
 
+from ._loop.unrolled import UnrolledERK
 from ._roots import safe_divide
-from ._unrolled import UnrolledERK
 
 _C = (  # nodes c_2 … c_21 (c_1 = 0)
     0.03462,

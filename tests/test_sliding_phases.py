@@ -1,5 +1,5 @@
 """`ZenoStick` runs step in phases: `program.free_step` while no lane slides, the full
-`program.step` while one does (`_loop/forward.py: staged_log_loop`, `_pool._in_phases`).
+`program.step` while one does (`_loop/forward.py: staged_log_loop`, `_loop/pool.py: _in_phases`).
 
 The phases are a cost saving only (a run that never slides paid 1.25× for the per-step
 sliding tests at batch 1): the results must equal the flat loop's bit for bit, in single
@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 import grazejax as gj
-import grazejax._pool as pool_module
+import grazejax._loop.pool as pool_module
 import grazejax._simulate as simulate_module
 from grazejax import examples as ex
 

@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 
 import grazejax as gj
-from grazejax._events import LIFT_FRACTION, step_ends
+from grazejax._loop.events import LIFT_FRACTION, step_ends
 from grazejax._loop.gaps import at_fraction as _at_fraction
 from grazejax._loop.gaps import fraction_time as _fraction_time
 from grazejax._loop.gaps import rates_at_ends
-from grazejax._unrolled import UnrolledERK, unrollable
+from grazejax._loop.unrolled import UnrolledERK, unrollable
 
 EPS = float(np.finfo(np.float64).eps)
 

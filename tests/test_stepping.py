@@ -1,4 +1,4 @@
-"""The loop's default step-size controller (`_stepping.IntegralController`) against
+"""The loop's default step-size controller (`_loop.stepping.IntegralController`) against
 Diffrax's `PIDController` with the same tolerances: the same decisions, the next step and
 the controller's state to an ulp or so, including failed steps (error 0, inf) and NaN
 candidates."""
@@ -11,7 +11,7 @@ import pytest
 
 import grazejax as gj
 from grazejax import examples as ex
-from grazejax._stepping import IntegralController, loop_controller
+from grazejax._loop.stepping import IntegralController, loop_controller
 
 EPS = float(np.finfo(np.float64).eps)
 
@@ -87,7 +87,7 @@ def test_error_norm_is_the_rms_norm(n):
     at 0, inf and NaN, batched or not."""
     import optimistix as optx
 
-    from grazejax._stepping import error_norm
+    from grazejax._loop.stepping import error_norm
 
     rng = np.random.default_rng(n)
     ratios = rng.normal(size=(200, n)) * 10.0 ** rng.uniform(-12, 3, size=(200, 1))

@@ -142,7 +142,7 @@ def test_a_lane_does_not_depend_on_the_lanes_beside_it():
     round differently from the one the last stage stored (FSAL): the recomputation after a
     jump must happen for the lanes that jumped only, not for every lane whenever one of them
     jumped (as a `cond` on any lane did: a lane's bits then moved with its neighbours'
-    impacts; see `grazejax._unrolled`). Batches of one size are one program; batches of
+    impacts; see `grazejax._loop.unrolled`). Batches of one size are one program; batches of
     other sizes are other programs, which XLA may fuse (and contract into FMAs) differently,
     so they agree to rounding only (`grazejax._sweep`'s docstring)."""
     x0s = np.stack([np.zeros(10), np.linspace(0.05, 0.9, 10)], axis=1)

@@ -1,4 +1,4 @@
-"""Explicit Runge–Kutta steps with unrolled stages (`grazejax._unrolled`) against Diffrax's
+"""Explicit Runge–Kutta steps with unrolled stages (`grazejax._loop.unrolled`) against Diffrax's
 own step (its stage loop, `scan_kind="lax"`): the same step to rounding, for every
 explicit tableau Diffrax ships (FSAL or not, with and without a jump), in float64 and
 float32, and differentiable in both modes."""
@@ -11,7 +11,7 @@ import pytest
 
 import grazejax as gj
 from grazejax import examples as ex
-from grazejax._unrolled import UnrolledERK, unrollable
+from grazejax._loop.unrolled import UnrolledERK, unrollable
 
 EXPLICIT = (diffrax.Heun, diffrax.Midpoint, diffrax.Ralston, diffrax.Bosh3, diffrax.Tsit5,
             diffrax.Dopri5, diffrax.Dopri8)

@@ -38,7 +38,7 @@ class LoopContext(eqx.Module):
     tol_r: Any  # the controller's tolerances: the state is known to them only
     tol_a: Any
     solver: diffrax.AbstractSolver
-    controller: Any  # the loop's step-size controller (see `_stepping.loop_controller`)
+    controller: Any  # the loop's step-size controller (see `stepping.loop_controller`)
     has_error: bool  # the solver has an embedded error estimate
     term: diffrax.ODETerm  # the field in the loop's clock (see `loop_field`)
     error_order: Any

@@ -1,4 +1,4 @@
-"""The search for a contact inside an accepted step (see `_events.py` for the tests, and
+"""The search for a contact inside an accepted step (see `events.py` for the tests, and
 `gaps.py` for the samples of the gap they read)."""
 
 import functools
@@ -11,9 +11,9 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool
 
 from .._custom_types import BoolScalar, RealScalar
-from .._events import Contact, locate
 from .compact import per_lane
 from .context import LoopContext
+from .events import Contact, locate
 from .gaps import step_floor
 from .policies import locate_release
 from .state import LoopState

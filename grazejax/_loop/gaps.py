@@ -1,6 +1,6 @@
 """Every surface's gap along a step just taken, sampled where the contact tests read it.
 
-The tests themselves (`_events.py`) work on values and slopes of the gap at the step's ends
+The tests themselves (`events.py`) work on values and slopes of the gap at the step's ends
 and its midpoint; this module evaluates them on the step's dense output,
 once per step, for the step-size verdict (`step.py`: an unresolved gap retakes the step)
 and for the in-step search (`detect.py`).
@@ -17,7 +17,10 @@ import jax.lax as lax
 import jax.numpy as jnp
 
 from .._custom_types import BoolScalar, RealScalar
-from .._events import (
+from .._geometry import FLOOR_ULPS
+from .._roots import safe_divide
+from .context import LoopContext
+from .events import (
     CHECK_POINTS,
     LIFT_FRACTION,
     gap_resolution,
@@ -26,9 +29,6 @@ from .._events import (
     split_step_ends,
     step_ends,
 )
-from .._geometry import FLOOR_ULPS
-from .._roots import safe_divide
-from .context import LoopContext
 from .state import LoopState
 
 # The check points of the halves' models, as fractions of the step.

@@ -15,8 +15,6 @@ from .._geometry import backward_piece, forward_piece
 from .._scene import Scene
 from .._solution import Solution
 from .._status import ImpactKind, Status
-from .._stepping import loop_controller
-from .._unrolled import UnrolledERK, unrollable
 from .compact import under_vmap
 from .context import LoopContext, loop_field
 from .detect import Detection, detect, nothing_detected
@@ -25,6 +23,8 @@ from .land import land_if_due
 from .policies import as_zeno_policy, stick_at_start
 from .state import LoopState, seed_fixed_point
 from .step import Step, take_step
+from .stepping import loop_controller
+from .unrolled import UnrolledERK, unrollable
 
 
 class Program(eqx.Module):
@@ -103,7 +103,7 @@ def build_context(
     )
     solver = _with_implicit_tolerances(solver, controller)
     # Diffrax's explicit tableaus run as straight-line stages: no inner loop, and both
-    # autodiff modes (see `_unrolled`). Other Runge-Kutta stages default to a checkpointed
+    # autodiff modes (see `unrolled`). Other Runge-Kutta stages default to a checkpointed
     # loop (custom_vjp), which forward-mode autodiff cannot enter; a plain lax loop supports
     # jvp, jacfwd and vmap. The adjoint decides (see `_adjoint`); a kind the user set on
     # the solver is kept.

@@ -10,12 +10,12 @@ import jax.numpy as jnp
 from jaxtyping import PyTree
 
 from .._custom_types import BoolScalar, RealScalar, State
-from .._stepping import error_or_zero
 from .compact import if_any_lane
 from .context import LoopContext
 from .gaps import GapSamples, sample_gaps
 from .replay import decision, replay_decisions
 from .state import LoopState
+from .stepping import error_or_zero
 
 
 class Step(NamedTuple):
@@ -44,7 +44,7 @@ def take_step(ctx: LoopContext, c: LoopState, slides: bool = True, forced=None,
     landing (its gaps are not sampled).
 
     A step the controller accepts is still retaken, shorter, where its samples do not
-    resolve a surface's gap (`_events.gap_resolution`): the contact tests would not be
+    resolve a surface's gap (`events.gap_resolution`): the contact tests would not be
     complete on it."""
     solver, controller = ctx.solver, ctx.controller
     targs = (c.args, c.t_hi, c.t_lo, c.stick)

@@ -92,7 +92,7 @@ def test_the_far_screen_is_stricter_than_the_clearance_rule():
     """`is_far` skips the resolution verdict on a step: it must accept only gaps that
     every sample and slope say cannot reach Φ = 0 (a dip between samples needs a slope
     FAR times larger than any seen), and refuse the shapes of the missed cases."""
-    from grazejax._events import FAR, is_far
+    from grazejax._loop.events import FAR, is_far
 
     # A straight approach from 1 to 0.9 with step·slope 0.1: far (1 > 8·0.2 is false).
     assert not bool(is_far((1.0, 0.95, 0.9), (-0.1, -0.1, -0.1)))

@@ -3,7 +3,7 @@
 Measured on landed main before the fix (issue: an elastic ball fell through its floor with
 status SUCCESS in 14 of 10,000 random (height, t1) pairs): the step that ended exactly where
 the flight did read g > 0 on its interpolant while its end state had g < 0. See
-`_events.step_ends`.
+`_loop.events.step_ends`.
 """
 
 import pytest

@@ -38,8 +38,8 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from ._geometry import FLOOR_ULPS
-from ._roots import bracketed_root, safe_divide
+from .._geometry import FLOOR_ULPS
+from .._roots import bracketed_root, safe_divide
 
 # Where a restart step that leaves Φ = 0 tangentially is judged (see `step_ends`).
 LIFT_FRACTION = 2.0**-20

@@ -25,8 +25,8 @@ import jax
 import jax.lax as lax
 import jax.numpy as jnp
 
-from ._loop.policies import sliding_phases
-from ._solution import Solution
+from .._solution import Solution
+from .policies import sliding_phases
 
 # Refill once at least `width // REFILL` slots have finished (or none is running): a refill
 # costs about one vmapped `init` and one whole-pool select, a few steps' worth; refilling
