@@ -158,7 +158,7 @@ def is_far(values, slopes):
     return lowest > FAR * (spread + steepest)
 
 
-def gap_resolution(g, d, checks, flagged, floor, restart, known):
+def gap_resolution(g, d, checks, flagged, floor, restart, known, g_start):
     """Whether the samples of a step resolve its gap: `(resolved, shrink)`.
 
     `g` = (g(0), g(½), g(1)) is the gap at θ = 0, ½, 1 and `d` its slopes in θ (h·ġ);
@@ -188,6 +188,16 @@ def gap_resolution(g, d, checks, flagged, floor, restart, known):
       half, further apart than the floor, that straddle Φ = 0 within the model error. The
       end tests cannot see a dip between such extrema (their end slopes are (+, +) or
       (−, −)), and a crossing between them may have three roots.
+
+    - *samples in order*: the gap's samples along the half (in time order: its ends and
+      its check point) change sign no more often than its end tests allow: never on a half that
+      no test flags and whose ends are on one side, once where the ends differ in sign,
+      twice for a dip or a hump. A check point on the far side of Φ = 0 (beyond the
+      floor) is a contact seen directly, whatever the model says: a hop that leaves a
+      moving wall and comes back within half a step fits a cubic through its ends to
+      within `SHAPE` while its check point lies inside the wall. On a restart step the
+      first sample's side is that of `g_start` (the guarded G(s_start), `step_ends`),
+      as g(sa) is the known root.
 
     `shrink` is the factor by which to retake the step: from the misfits' h⁴ law, read
     off in powers of two (no root in every step of every lane): 0.5 where at most 16
@@ -226,15 +236,45 @@ def gap_resolution(g, d, checks, flagged, floor, restart, known):
         needed = CLEARANCE * error + floor
         clear = ~one_side | flag | (distance > needed) | (error <= known)
         hidden = _hidden_pair(p0, p1, m0, m1, error + floor, floor)
-        resolved = resolved & clear & shaped & ~hidden
+        sides = [_side(v, floor) for v in (p0, value, p1)]
+        if q == 0:
+            sides[0] = jnp.where(restart, jnp.sign(g_start), sides[0])
+        in_order = _sign_changes(sides) <= _allowed_changes(sides[0], sides[-1], flag)
+        resolved = resolved & clear & shaped & ~hidden & in_order
         ratio = jnp.maximum(
             jnp.where(clear, 0.0, needed / jnp.maximum(distance, floor)),
             jnp.where(shaped, 0.0, jnp.maximum(value_misfit / shape_allowed,
                                                slope_misfit / slope_allowed)),
         )
+        ratio = jnp.where(in_order, ratio, jnp.maximum(ratio, 16.0))
         worst = jnp.maximum(worst, ratio)
     shrink = jnp.where(worst <= 16, 0.5, jnp.where(worst <= 256, 0.25, 0.1))
     return resolved, shrink
+
+
+def _side(value, floor):
+    """+1 or −1 for a gap value beyond the floor on either side of Φ = 0, 0 within it (a
+    touch at round-off is on no side)."""
+    return jnp.where(jnp.abs(value) > floor, jnp.sign(value), 0.0)
+
+
+def _sign_changes(sides):
+    """How often a sequence of `_side`s changes sign (zeros are skipped)."""
+    changes = jnp.zeros((), jnp.int32)
+    last = jnp.zeros_like(sides[0])
+    for side in sides:
+        changes = changes + ((side != 0) & (last != 0) & (side != last))
+        last = jnp.where(side != 0, side, last)
+    return changes
+
+
+def _allowed_changes(first, last, flagged):
+    """The sign changes a half's end tests account for, from the sides of its ends: one
+    between ends on either side of Φ = 0 (a crossing, or a flight rising out of Φ < 0) or
+    where an end is within the floor, two for a flagged dip or hump, none for an unflagged
+    half with both ends on one side."""
+    one_side = first * last > 0
+    return jnp.where(one_side, jnp.where(flagged, 2, 0), 1)
 
 
 def _hermite(p0, p1, m0, m1, u: float):

@@ -150,7 +150,8 @@ def _sample_one(ctx: LoopContext, step: _StepView, i: int, piece, sign):
         known = piece.floor(ctx.abs_time(sb, c.t_hi, c.t_lo), step.y1, c.args,
                             tol / (FLOOR_ULPS * ctx.eps))
         ok, factor = gap_resolution((g_a, g_mid, g_b), tuple(h * r for r in slopes), checks,
-                                    tuple(flags), floor, c.restart[i], jnp.maximum(known, floor))
+                                    tuple(flags), floor, c.restart[i], jnp.maximum(known, floor),
+                                    whole.g_start)
         # (the branches of the caller's `cond` must agree in type: float32 runs too)
         return ok | ~defined, jnp.asarray(factor, ctx.dtype)
 

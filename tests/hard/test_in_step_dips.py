@@ -105,3 +105,28 @@ def test_the_far_screen_is_stricter_than_the_clearance_rule():
     assert not bool(is_far(tuple(0.99 + np.cos(t)), tuple(-6.0 * np.sin(t))))
     # Non-finite samples are not far.
     assert not bool(is_far((jnp.nan, 5.0, 5.0), (0.0, 0.0, 0.0)))
+
+
+def test_a_hop_off_a_moving_wall_that_returns_inside_half_a_step():
+    """The samples of a step found by the fuzz campaign (mech2, Vern9): a body leaves a fast
+    moving wall (restart, ġ > 0), the wall catches it 0.019 later and it is inside the
+    wall at the first half's check point (g = −5.4e-3), back out at the midpoint. The cubic
+    through the half's ends fits that check point within `SHAPE` of its spread, and both
+    ends and the slopes there are positive, so no end test flags the half: only the order
+    of the samples' signs (+, −, +) shows the contact. Values are the gap and h·ġ at
+    θ = 0, ½, 1 and the check points, from an rtol 1e-13 DOP853 solution."""
+    from grazejax._loop.events import gap_resolution
+
+    f = lambda *v: tuple(jnp.asarray(x, jnp.float64) for x in v)  # noqa: E731
+    g = f(4.163336e-16, 7.246791e-02, 2.633892e-01)
+    d = f(6.794866e-02, 5.592070e-01, -2.598236e-02)
+    checks = (f(-5.428675e-03, -1.501351e-02), f(2.399973e-01, 3.200496e-01))
+    no = jnp.asarray(False)
+    resolved, shrink = gap_resolution(g, d, checks, (no, no), *f(1e-14), jnp.asarray(True),
+                                      *f(1e-12, 6.794866e-02 / 0.2046))
+    assert not bool(resolved) and float(shrink) < 1.0
+    # The same samples with the check point outside the wall are resolved.
+    checks = (f(5.428675e-03, 1.501351e-02), checks[1])
+    resolved, _ = gap_resolution(g, d, checks, (no, no), *f(1e-14), jnp.asarray(True),
+                                 *f(1e-12, 6.794866e-02 / 0.2046))
+    assert bool(resolved)
