@@ -103,7 +103,7 @@ def _assert_same_lanes(out, ref, exact):
         np.testing.assert_array_equal(getattr(out, field), getattr(ref, field), err_msg=field)
     for field in ("t_final", "x_final", "impact_times", "impact_pre", "impact_post", "zeno_time",
                   "ts", "xs"):
-        if exact:
+        if exact or getattr(ref, field) is None:
             np.testing.assert_array_equal(getattr(out, field), getattr(ref, field), err_msg=field)
         else:
             # 30 bounces amplify a last-bit difference to ~1e-12 relative.
@@ -137,12 +137,14 @@ def test_refill_equals_loop_and_vmap(heights, restitutions, nan_lane):
 
 
 def test_a_lane_does_not_depend_on_the_lanes_beside_it():
-    """The same start gives the same bits in any vmapped batch. ex1dof's field depends on t
-    and on both coordinates, so a field value recomputed elsewhere may round differently
-    from the one the last stage stored (FSAL): the recomputation after a jump must happen
-    for the lanes that jumped only, not for every lane whenever one of them jumped (as a
-    `cond` on any lane did: a lane's bits then moved with its neighbours' impacts; see
-    `grazejax._loop.unrolled`)."""
+    """The same start gives the same bits whatever starts share its vmapped batch. ex1dof's
+    field depends on t and on both coordinates, so a field value recomputed elsewhere may
+    round differently from the one the last stage stored (FSAL): the recomputation after a
+    jump must happen for the lanes that jumped only, not for every lane whenever one of them
+    jumped (as a `cond` on any lane did: a lane's bits then moved with its neighbours'
+    impacts; see `grazejax._loop.unrolled`). Batches of one size are one program; batches of
+    other sizes are other programs, which XLA may fuse (and contract into FMAs) differently,
+    so they agree to rounding only (`grazejax._sweep`'s docstring)."""
     x0s = np.stack([np.zeros(10), np.linspace(0.05, 0.9, 10)], axis=1)
     run = jax.jit(jax.vmap(lambda x: gj.simulate(
         ex.ex1dof(), x, 0.0, 30.0, ex.ex1dof_args(0.2), rtol=1e-9, atol=1e-11,
@@ -150,10 +152,16 @@ def test_a_lane_does_not_depend_on_the_lanes_beside_it():
     everyone = run(jnp.asarray(x0s))
     assert np.all(np.asarray(everyone.status) == gj.Status.SUCCESS)
     assert np.all(np.asarray(everyone.num_impacts) >= 4)
+    others = np.stack([np.zeros(10), np.linspace(0.93, 0.06, 10)], axis=1)  # other impacts
     for lanes in ([0, 1], [0, 1, 2, 3, 4, 5], [2, 5, 8]):
-        few = run(jnp.asarray(x0s[lanes]))
+        mixed = others.copy()
+        mixed[lanes] = x0s[lanes]
+        beside = run(jnp.asarray(mixed))
+        mine = jax.tree.map(lambda leaf, lanes=lanes: np.asarray(leaf)[lanes], beside)
         picked = jax.tree.map(lambda leaf, lanes=lanes: np.asarray(leaf)[lanes], everyone)
-        _assert_same_lanes(few, picked, exact=True)
+        _assert_same_lanes(mine, picked, exact=True)
+        few = run(jnp.asarray(x0s[lanes]))  # another batch size: another program
+        _assert_same_lanes(few, picked, exact=False)
 
 
 def test_refill_mixes_lane_costs_and_statuses():

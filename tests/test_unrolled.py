@@ -81,13 +81,21 @@ def test_step_differentiates_in_both_modes():
 
 def test_simulate_unrolled_matches_stage_loop():
     """The whole impact loop with unrolled stages against the stage loop: the same impacts,
-    times to the solver's tolerance scale (the steps differ by rounding only)."""
+    and times that differ by rounding only — far less than either differs from a tight
+    reference (the method's own error). The unrolled sums are taken relative to the first
+    stage, so the two round differently and the impacts amplify it."""
     scene, args = ex.ex1dof(), ex.ex1dof_args(0.2)
     x0 = jnp.array([0.0, 0.0384224329])
-    runs = [
-        gj.simulate(scene, x0, 0.0, jnp.inf, args, solver=s, rtol=1e-10, atol=1e-10,
-                    max_impacts=10, direction=1)
-        for s in (diffrax.Dopri8(), diffrax.Dopri8(scan_kind="lax"))
-    ]
-    assert int(runs[0].num_impacts) == int(runs[1].num_impacts) == 10
-    np.testing.assert_allclose(runs[0].impact_times, runs[1].impact_times, rtol=0, atol=1e-11)
+
+    def times(solver, tol):
+        sol = gj.simulate(scene, x0, 0.0, jnp.inf, args, solver=solver, rtol=tol, atol=tol,
+                          max_impacts=10, direction=1)
+        assert int(sol.num_impacts) == 10
+        return np.asarray(sol.impact_times)
+
+    unrolled = times(diffrax.Dopri8(), 1e-10)
+    stage_loop = times(diffrax.Dopri8(scan_kind="lax"), 1e-10)
+    reference = times(diffrax.Dopri8(scan_kind="lax"), 1e-14)
+    method_error = np.max(np.abs(stage_loop - reference))
+    assert method_error > 0
+    assert np.max(np.abs(unrolled - stage_loop)) <= 0.01 * method_error

@@ -38,9 +38,8 @@ def _weighted_sum(weights, ks):
     Straight-line products and adds fuse into one loop per stage. Diffrax's form, a
     contraction with the stacked stages (`tensordot`), is a dot per stage that XLA's CPU
     backend does not fuse (under `vmap` it costs several times this sum). The order is
-    chosen for rounding: a sequential chain w₀k₀ + w₁k₁ + … lets an elastic ball's speed
-    drift faster per bounce than the contraction, and a balanced tree less than either
-    (`tests/hard/energy_drift.py` measures it).
+    chosen for rounding: a sequential chain w₀k₀ + w₁k₁ + … rounds worse than a balanced
+    tree.
     """
     weights = np.asarray(weights)
     weighted = zip(weights, ks[: len(weights)], strict=True)
@@ -53,9 +52,25 @@ def _weighted_sum(weights, ks):
     return terms[0]
 
 
-def _plus(y0, weights, ks):
-    """y0 + Σ_j w_j k_j."""
-    increment = _weighted_sum(weights, ks)
+def _combination(y0, weights, total, ks, rises):
+    """y0 + Σ_j w_j k_j, summed relative to the first stage:
+    y0 + (total·k₀ + Σ_{j≥1} w_j (k_j − k₀)), where `total` is Σ_j w_j as the tableau means
+    it (c_i for a stage, 1 for the solution, 0 for the error estimate) and
+    `rises[j] = k_j − k₀` (computed as h·(f_j − f₀)). `y0=None`: the increment alone.
+
+    A tableau's weights are not exact in binary and their sum in floating point misses c_i
+    (or 1) by ulps, so a constant field — every stage equal — gains the same relative error
+    in every step. Over identical flights (an elastic ball) that error is coherent: the
+    speed gained tens of ulps per bounce and impact times drifted like k². Relative to the
+    first stage a constant field is exact to one rounding of total·k₀, and the rounding of
+    the rest scales with how much the stages differ, not with their size.
+    """
+    rest = _weighted_sum(np.asarray(weights)[1:], rises[1: len(weights)])
+    base = None if total == 0 else jnp.asarray(total, ks[0].dtype) * ks[0]
+    parts = [p for p in (base, rest) if p is not None]
+    increment = None if not parts else parts[0] if len(parts) == 1 else parts[0] + parts[1]
+    if y0 is None:
+        return increment
     return y0 if increment is None else y0 + increment
 
 
@@ -116,22 +131,30 @@ class UnrolledERK(diffrax.AbstractAdaptiveSolver):
             needs_f0 = first_step | made_jump
             f0 = jnp.where(needs_f0, terms.vf(t0, y0, args), f0)
         ks = [terms.prod(f0, dt)]
+        # k_j − k₀ as h·(f_j − f₀): the same in every program. (Written as h·f_j − h·f₀,
+        # XLA's simplifier may factor it in one program and not in another, depending on
+        # who else reads h·f_j: a sweep's lanes then differed in the last bit from the same
+        # lanes under plain `vmap`.)
+        rises = [None]
         fi = f0
         yi = y0
         for i in range(1, num_stages):
-            yi = _plus(y0, a_lower[i - 1], ks)
             ci = float(c[i - 1])
+            yi = _combination(y0, a_lower[i - 1], ci, ks, rises)
             ti = t1 if ci == 1 else t0 + ci * dt
             fi = terms.vf(ti, yi, args)
             ks.append(terms.prod(fi, dt))
-        y1 = yi if tableau.ssal else _plus(y0, tableau.b_sol, ks)
-        y_error = _weighted_sum(tableau.b_error, ks)
+            rises.append(terms.prod(fi - f0, dt))
+        y1 = yi if tableau.ssal else _combination(y0, tableau.b_sol, 1.0, ks, rises)
+        y_error = _combination(None, tableau.b_error, 0.0, ks, rises)
         if y_error is None:
             y_error = jnp.zeros_like(y0)
         new_state = None if solver_state is None else (jnp.array(False), fi)
         # Stages that only the dense output reads (`Vern9`'s interpolant).
         for ci, row in getattr(type(self.solver), "dense_stages", ()):
-            yi = _plus(y0, row, ks)
-            ks.append(terms.prod(terms.vf(t0 + float(ci) * dt, yi, args), dt))
+            yi = _combination(y0, row, float(ci), ks, rises)
+            fi = terms.vf(t0 + float(ci) * dt, yi, args)
+            ks.append(terms.prod(fi, dt))
+            rises.append(terms.prod(fi - f0, dt))
         dense_info = dict(y0=y0, y1=y1, k=jnp.stack(ks))
         return y1, y_error, dense_info, new_state, diffrax.RESULTS.successful

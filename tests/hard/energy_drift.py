@@ -3,9 +3,11 @@
     python -m tests.hard.energy_drift
 
 Every flight of the elastic ball is integrated the same way, so the rounding of each
-Runge–Kutta step (the tableau's weights are not exact in binary) is the same in every
-flight and adds up coherently: the speed gains a fixed number of ulps per bounce and the
-impact times drift like k². Which solver decides how many.
+Runge–Kutta step is the same in every flight and adds up coherently. A tableau's weights
+are not exact in binary: summed as Σ_j b_j k_j, free fall's speed gained a fixed number of
+ulps per bounce and the impact times drifted like k². The unrolled steps sum relative to the
+first stage (`grazejax/_loop/unrolled.py`), exact for a constant field: the gain per bounce is a
+small fraction of an ulp and the drift grows like k.
 """
 
 import diffrax
