@@ -49,13 +49,13 @@ def starts(lanes, seed=0):
     return {"in_phase": in_phase, "random": np.asarray(cycle.xs)}
 
 
-def runner(solver, tol):
+def runner(solver, tol, **options):
     """The sweep as `sweep` compiles it: `gj.compiler_options()` (512-bit vectors on a CPU
-    with AVX-512) with `jit`."""
+    with AVX-512) with `jit`. `options`: more of `simulate`'s."""
     scene, args = ex.ex1dof(), ex.ex1dof_args(0.2)
     return jax.jit(jax.vmap(lambda x0: gj.simulate(
         scene, x0, 0.0, jnp.inf, args, solver=solver, rtol=tol, atol=tol,
-        max_impacts=IMPACTS, direction=1)), compiler_options=gj.compiler_options())
+        max_impacts=IMPACTS, direction=1, **options)), compiler_options=gj.compiler_options())
 
 
 def cpu_seconds(fn, repeats, clock=time.process_time):

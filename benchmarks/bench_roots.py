@@ -3,7 +3,7 @@
     python benchmarks/bench_roots.py [--lanes N] [--repeats R] [--out DIR]
 
 Compares Chandrupatla's search (the default) with ITP and the safeguarded Newton search
-(`grazejax._roots.search_method`, chosen at trace time), side by side in one process:
+(`simulate(..., event_root_finder=...)`), side by side in one process:
 
 1. Iterations per call (`bracketed_root(count=True)`, recorded by a host callback in
    single, un-batched runs; calls on an empty bracket are not counted): a transversal
@@ -28,6 +28,13 @@ METHODS = ("chandrupatla", "itp", "newton")
 LABELS = {"chandrupatla": "Chandrupatla", "itp": "ITP", "newton": "Newton"}
 
 
+def finder(method):
+    """grazejax's root finder for `method` (`simulate(..., event_root_finder=...)`)."""
+    import grazejax as gj
+
+    return {"chandrupatla": gj.Chandrupatla, "itp": gj.ITP, "newton": gj.BracketedNewton}[method]()
+
+
 def iteration_counts(method):
     import jax
     import jax.numpy as jnp
@@ -41,7 +48,7 @@ def iteration_counts(method):
     original = _roots.bracketed_root
 
     def recording(fn, lo, hi, f_lo, f_hi, **kw):
-        lo_, hi_, it = original(fn, lo, hi, f_lo, f_hi, count=True, method=method, **kw)
+        lo_, hi_, it = original(fn, lo, hi, f_lo, f_hi, count=True, **kw)
         jax.debug.callback(lambda n: calls.append(int(n)) if n > 0 else None, it)
         return lo_, hi_
 
@@ -59,7 +66,7 @@ def iteration_counts(method):
         for name, (scene, x0, t1, args, kw) in cases.items():
             calls.clear()
             sol = gj.simulate(scene, x0, 0.0, t1, args, rtol=1e-10, atol=1e-10,
-                              max_impacts=40, **kw)
+                              max_impacts=40, event_root_finder=finder(method), **kw)
             jax.block_until_ready(sol.x_final)
             out[name] = (np.mean(calls), max(calls), len(calls), int(sol.num_impacts),
                          np.asarray(sol.impact_times))
@@ -75,17 +82,15 @@ def throughput(lanes, repeats, tols):
     sys.path.insert(0, os.path.dirname(__file__))
     import bench_phases
 
-    from grazejax._roots import search_method
-
     x0s = bench_phases.starts(lanes)
     rows = []
     for tol in tols:
         for kind, x in x0s.items():
             res = {}
             for method in METHODS:
-                with search_method(method):
-                    run = bench_phases.runner(diffrax.Dopri8(), tol)
-                    sol = run(jnp.asarray(x))  # compiled under the method
+                run = bench_phases.runner(diffrax.Dopri8(), tol,
+                                          event_root_finder=finder(method))
+                sol = run(jnp.asarray(x))
                 res[method] = (run, np.asarray(sol.impact_times))
             times = {m: [] for m in res}
             for _ in range(repeats):  # interleaved, so that load affects both alike

@@ -68,6 +68,10 @@ from ._piecewise import PiecewiseScene as PiecewiseScene
 from ._piecewise import SwitchingSurface as SwitchingSurface
 from ._piecewise import Transition as Transition
 from ._piecewise import check_field_continuity as check_field_continuity
+from ._roots import ITP as ITP
+from ._roots import AbstractBracketedRootFinder as AbstractBracketedRootFinder
+from ._roots import BracketedNewton as BracketedNewton
+from ._roots import Chandrupatla as Chandrupatla
 from ._scene import Scene as Scene
 from ._scene import Surface as Surface
 from ._simulate import simulate as simulate

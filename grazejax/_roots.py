@@ -6,15 +6,17 @@ diffrax locates events with an unbracketed Newton iteration started at the step'
 look for is already bracketed by a sign change inside one step, so we keep the bracket and
 take fast steps inside it.
 
-Three methods (`method=`, or `search_method` around tracing for side-by-side benchmarks):
+Three root finders, strategy objects that `simulate(..., event_root_finder=...)` passes down
+to every search of the loop (the in-step contact and extremum searches, the end of
+sliding):
 
-- `"chandrupatla"`, the default (T. R. Chandrupatla, 1997): inverse quadratic
+- `Chandrupatla()`, the default (T. R. Chandrupatla, 1997): inverse quadratic
   interpolation where it is well behaved, else bisection, with steps that close the
   bracket from both sides; guarded to at most bisection's count plus a few iterations.
-- `"itp"` (Oliveira & Takahashi, ACM TOMS 47(1), 2020): regula falsi, truncated towards
+- `ITP()` (Oliveira & Takahashi, ACM TOMS 47(1), 2020): regula falsi, truncated towards
   the midpoint and projected into a shrinking ball around it; never more than one
   iteration more than bisection.
-- `"newton"`: a safeguarded Newton iteration (Numerical Recipes' `rtsafe`, plus a
+- `BracketedNewton()`: a safeguarded Newton iteration (Numerical Recipes' `rtsafe`, plus a
   bracket-closing phase). The slope comes with the value from one `jax.jvp` of the
   interpolated gap; the first point is regula falsi; a Newton point outside the bracket,
   or one that does not halve the step before the last, is replaced by the midpoint; once
@@ -30,33 +32,54 @@ fewer but pays a jvp per iteration and has a long tail over a random-phase sweep
 Newton's counts at the cost of an ITP iteration.
 """
 
-import contextlib
+import abc
 
+import equinox as eqx
 import jax
 import jax.lax as lax
 import jax.numpy as jnp
 
-_METHODS = ("newton", "itp", "chandrupatla")
-_default_method = "chandrupatla"
+
+class AbstractBracketedRootFinder(eqx.Module):
+    """A bracketed scalar root finder: what the loop's searches call (`bracketed_root`).
+
+    Unlike Optimistix's root finders these never leave their bracket: every root the loop
+    looks for is bracketed by a sign change inside one step.
+    """
+
+    @abc.abstractmethod
+    def close(self, fn, lo, hi, f_lo, f_hi, width, target, max_iter):
+        """Shrink `[lo, hi]` (with `fn(lo) = f_lo > 0 >= f_hi = fn(hi)`) around the sign
+        change: `(lo, hi, iterations)`, stopping at `width` (0: to the end) or at
+        `target` (a few ulps of the bracket's ends), or after `max_iter` iterations."""
 
 
-@contextlib.contextmanager
-def search_method(method: str):
-    """Trace the loop's root searches with `method` (one of `_METHODS`) inside this
-    block: for side-by-side benchmarks only (the choice is made at trace time)."""
-    global _default_method
-    if method not in _METHODS:
-        raise ValueError(f"method must be one of {_METHODS}, got {method!r}")
-    old, _default_method = _default_method, method
-    try:
-        yield
-    finally:
-        _default_method = old
+class Chandrupatla(AbstractBracketedRootFinder):
+    """Chandrupatla's method (the default): inverse quadratic interpolation where it is
+    well behaved, else bisection; at most bisection's count plus a few iterations."""
+
+    def close(self, fn, lo, hi, f_lo, f_hi, width, target, max_iter):
+        return _chandrupatla(fn, lo, hi, f_lo, f_hi, target, max_iter)
+
+
+class ITP(AbstractBracketedRootFinder):
+    """The ITP method (interpolate, truncate, project): never more than one iteration more
+    than bisection."""
+
+    def close(self, fn, lo, hi, f_lo, f_hi, width, target, max_iter):
+        return _itp(fn, lo, hi, f_lo, f_hi, target, max_iter)
+
+
+class BracketedNewton(AbstractBracketedRootFinder):
+    """Safeguarded Newton inside the bracket, which it closes onto adjacent floats."""
+
+    def close(self, fn, lo, hi, f_lo, f_hi, width, target, max_iter):
+        return _newton(fn, lo, hi, f_lo, f_hi, width, target, max_iter)
 
 
 def bracketed_root(
     fn, lo, hi, f_lo, f_hi, *, rel_width: float = 0.0, max_iter: int = 60, count: bool = False,
-    method: str | None = None,
+    finder: AbstractBracketedRootFinder | None = None,
 ):
     """Locate the sign change of `fn` in `[lo, hi]`, given `f_lo > 0 >= f_hi`.
 
@@ -65,8 +88,8 @@ def bracketed_root(
     `hi` is the first point at or past the sign change. The result carries no
     derivative: callers apply one Newton step outside (the implicit function theorem) when
     they need tangents. `count=True` also returns the number of iterations (for tests and
-    profiles). `method` is `"chandrupatla"` (the default, see the module docstring),
-    `"itp"` or `"newton"`.
+    profiles). `finder` is the root finder (default `Chandrupatla()`, see the module
+    docstring).
 
     Why to machine precision by default: the landing step's Newton correction leaves an
     error e²·|g''|/(2|g'|) for a proposal error e, which is not small near grazing or in a
@@ -74,7 +97,7 @@ def bracketed_root(
     1e-10-of-a-step proposal gave 1e-8 relative flight-time errors late in a bouncing
     ball's Zeno sequence).
     """
-    method = _default_method if method is None else method
+    finder = Chandrupatla() if finder is None else finder
     lo, hi, f_lo, f_hi = (lax.stop_gradient(v) for v in (lo, hi, f_lo, f_hi))
     # The values `fn` closes over (the step's interpolant, args) are held constant too: a
     # while loop whose body reads differentiated values cannot be transposed, so reverse
@@ -87,14 +110,7 @@ def bracketed_root(
 
     eps = jnp.finfo(jnp.result_type(lo)).eps
     target = jnp.maximum(rel_width * (hi - lo), 4 * eps * jnp.maximum(jnp.abs(lo), jnp.abs(hi)))
-    if method == "newton":
-        out = _newton(fn, lo, hi, f_lo, f_hi, rel_width * (hi - lo), target, max_iter)
-    elif method == "itp":
-        out = _itp(fn, lo, hi, f_lo, f_hi, target, max_iter)
-    elif method == "chandrupatla":
-        out = _chandrupatla(fn, lo, hi, f_lo, f_hi, target, max_iter)
-    else:
-        raise ValueError(f"method must be one of {_METHODS}, got {method!r}")
+    out = finder.close(fn, lo, hi, f_lo, f_hi, rel_width * (hi - lo), target, max_iter)
     lo, hi, iterations = out
     return (lo, hi, iterations) if count else (lo, hi)
 

@@ -52,6 +52,7 @@ from ._loop.reverse import (
     two_level_checkpointed,
 )
 from ._loop.state import packing
+from ._roots import AbstractBracketedRootFinder
 from ._scene import Scene
 from ._solution import ACCEPTED, FIELD_FIX, SimulationError, Solution, failure_message
 from ._status import Status
@@ -84,6 +85,7 @@ def simulate(
     throw: bool = False,
     adjoint=None,
     check_field_jumps: bool = True,
+    event_root_finder: AbstractBracketedRootFinder | None = None,
 ) -> Solution:
     r"""Simulate x' = f(t, x) with jumps x → J_i(x) on the surface pieces Γ_i, from t0 to t1.
 
@@ -151,6 +153,11 @@ def simulate(
       Seven evaluations of f per event, none differentiated; `False` compiles it out, and
       so does a field that cannot jump (every operation on the state in its jaxpr is
       continuous: no `sign`, comparison, or `where`/`cond`/index on x).
+    - `event_root_finder`: the bracketed root finder of every search inside a step (contacts,
+      extrema of the gap, the end of sliding): [`grazejax.Chandrupatla`][] (default),
+      [`grazejax.ITP`][] or [`grazejax.BracketedNewton`][]. All close the bracket to a few
+      ulps, so results agree to rounding; they differ in iterations per search
+      (`benchmarks/bench_roots.py`).
     - `throw`: raise if the run does not end with `SUCCESS`, `MAX_IMPACTS` or `ZENO`.
       Outside `jit`: a [`grazejax.SimulationError`][] that names the status and the fix,
       with the Solution as `error.solution`. Inside `jit`/`vmap`: a runtime error
@@ -202,7 +209,7 @@ def simulate(
         solver=solver, rtol=rtol, atol=atol, stepsize_controller=stepsize_controller,
         dt0=dt0, max_impacts=max_impacts, max_steps=max_steps, zeno_rtol=zeno_rtol,
         zeno=zeno, adjoint=adjoint, check_field_jumps=check_field_jumps,
-        allow_float32=allow_float32,
+        allow_float32=allow_float32, event_root_finder=event_root_finder,
     )
     if is_concrete(scene, x0, t0, t1, args, saveat, options):
         # Outside any transformation: check the inputs here, where their values are known,

@@ -6,7 +6,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from grazejax._roots import _CHANDRUPATLA_SLACK, bracketed_root
+from grazejax._roots import _CHANDRUPATLA_SLACK, ITP, BracketedNewton, Chandrupatla, bracketed_root
+
+FINDERS = {"chandrupatla": Chandrupatla(), "itp": ITP(), "newton": BracketedNewton()}
 
 EPS = float(np.finfo(np.float64).eps)
 
@@ -66,7 +68,7 @@ def test_worst_case_on_roots_flat_or_steep(method):
 
         lo, hi, iterations = jax.jit(lambda fn=fn: bracketed_root(
             fn, jnp.float64(0.0), jnp.float64(1.0), fn(0.0), fn(1.0), count=True,
-            method=method))()
+            finder=FINDERS[method]))()
         assert float(fn(lo)) > 0 >= float(fn(hi))
         assert abs(float(hi) - r) <= 8 * EPS, (r, p)
         assert int(iterations) <= _bisection_count(0.0, 1.0) + slack + 1, (r, p)
@@ -105,7 +107,7 @@ def test_newton_and_itp_agree(name):
 
     def search(method):
         return jax.jit(lambda: bracketed_root(
-            fn, lo0, hi0, fn(lo0), fn(hi0), count=True, method=method))()
+            fn, lo0, hi0, fn(lo0), fn(hi0), count=True, finder=FINDERS[method]))()
 
     lo, hi, iterations = search("newton")
     _, hi_itp, iterations_itp = search("itp")
@@ -115,3 +117,25 @@ def test_newton_and_itp_agree(name):
     assert int(iterations) <= int(iterations_itp)
     if name in ("linear", "quadratic", "exponential", "offset clock"):
         assert int(iterations) <= 12
+
+
+def test_simulate_takes_every_event_root_finder_and_refuses_others():
+    """`simulate(..., event_root_finder=...)` passes the finder to every search of the
+    loop: each closes its brackets to a few ulps, so the runs agree to rounding (a ball
+    with e = 0.8, whose impacts each end a flight found by the in-step search)."""
+    import grazejax as gj
+    from grazejax.examples import bouncing_ball
+
+    scene, args = bouncing_ball(), {"g": 9.81, "e": 0.8}
+    runs = {
+        name: gj.simulate(scene, [1.0, 0.0], 0.0, 3.0, args, rtol=1e-10, atol=1e-10,
+                          event_root_finder=finder)
+        for name, finder in FINDERS.items()
+    }
+    base = runs["chandrupatla"]
+    assert int(base.num_impacts) >= 6
+    for sol in runs.values():
+        assert int(sol.num_impacts) == int(base.num_impacts)
+        np.testing.assert_allclose(sol.impact_times, base.impact_times, rtol=0, atol=1e-13)
+    with pytest.raises(TypeError, match="event_root_finder must be a grazejax bracketed"):
+        gj.simulate(scene, [1.0, 0.0], 0.0, 3.0, args, event_root_finder="itp")

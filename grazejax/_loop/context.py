@@ -16,6 +16,7 @@ from jaxtyping import Array, Float
 from .._adjoint import LoopKinds
 from .._custom_types import RealScalar, VectorField
 from .._geometry import Piece, contact_frame, gap_rates, is_tangential, project_to_contact
+from .._roots import AbstractBracketedRootFinder
 from .._status import ImpactKind
 from .policies import AbstractZenoPolicy, sliding_field
 
@@ -44,6 +45,7 @@ class LoopContext(eqx.Module):
     error_order: Any
     kinds: LoopKinds
     policy: AbstractZenoPolicy
+    event_root_finder: AbstractBracketedRootFinder  # every bracketed search of the loop (`_roots`)
     # Sliding is compiled in only when asked for (ZenoStick) and there is a surface.
     sticky: bool
     # The loop runs on a batch of lanes (`jax.vmap`, `sweep`'s pool): the impact log's

@@ -114,7 +114,7 @@ def _search(ctx: LoopContext, inputs: SearchInputs):
                                inputs.y1, halves[0].slope_start, halves[1].slope_end)
             contact, on_boundary = _first_contact(
                 g, inside, halves, inputs.bounds, inputs.restart[i], floor,
-                inputs.candidate[i][k],
+                inputs.candidate[i][k], ctx.event_root_finder,
             )
             found = found.at[i, k].set(contact.found)
             times = times.at[i, k].set(jnp.where(contact.found, contact.time, jnp.inf))
@@ -123,7 +123,7 @@ def _search(ctx: LoopContext, inputs: SearchInputs):
     return found, times, touch, boundary
 
 
-def _first_contact(g, inside, halves, bounds, restart, floor, flags):
+def _first_contact(g, inside, halves, bounds, restart, floor, flags, finder):
     """The first contact inside the piece, over the step's halves in time order:
     `(Contact, on ∂Γ)`. A half that `is_candidate` did not flag is not searched; a dip
     that stays above the floor, or a contact outside the piece, moves on to the second.
@@ -143,7 +143,7 @@ def _first_contact(g, inside, halves, bounds, restart, floor, flags):
         j, _, _ = carry
         e = pick(j, *halves)
         s_lo, s_hi = jnp.where(j == 0, sa, s_mid), jnp.where(j == 0, s_mid, sb)
-        contact = locate(g, sa, s_lo, s_hi, e, restart, floor)
+        contact = locate(g, sa, s_lo, s_hi, e, restart, floor, finder)
         in_piece, on_boundary = inside(contact.time)
         contact = contact._replace(found=contact.found & in_piece)
         after = jnp.where((j == 0) & second_flag, 1, 2)

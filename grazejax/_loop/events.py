@@ -330,9 +330,10 @@ class Contact(NamedTuple):
     touch: jax.Array  # bool: tangential within the floor (γ): the time is the minimum
 
 
-def locate(g, sa, s_lo, s_hi, ends: StepEnds, restart, floor) -> Contact:
+def locate(g, sa, s_lo, s_hi, ends: StepEnds, restart, floor, finder) -> Contact:
     """Locate the first contact in the sub-interval [s_lo, s_hi] of the step from `sa`,
-    given that `is_candidate` said maybe (the restart guard is taken from `sa`)."""
+    given that `is_candidate` said maybe (the restart guard is taken from `sa`), with
+    the root finder `finder` (`_roots`)."""
     crossing, dip, hump = is_candidate(ends)
     G = guarded(g, sa, restart)
     extremum = dip | hump
@@ -347,7 +348,7 @@ def locate(g, sa, s_lo, s_hi, ends: StepEnds, restart, floor) -> Contact:
     # Inactive lanes get an empty bracket, so they cost no iterations under vmap.
     _, t_ext = bracketed_root(
         signed_slope, jnp.where(extremum, s_lo, s_hi), s_hi, direction * ends.slope_start,
-        direction * ends.slope_end,
+        direction * ends.slope_end, finder=finder,
     )
     t_ext = jnp.where(extremum, t_ext, s_hi)
     g_ext = jnp.where(extremum, g(t_ext), ends.g_end)
@@ -366,7 +367,8 @@ def locate(g, sa, s_lo, s_hi, ends: StepEnds, restart, floor) -> Contact:
     G_upper = jnp.where(dip, jnp.minimum(G(upper), 0.0), ends.g_end)
     G_lower = jnp.where(hump, G(t_ext), jnp.where(ends.g_start > 0, ends.g_start, 1.0))
     deep = crossing | (dip_hits & ~touch) | hump_hits
-    _, t_cross = bracketed_root(G, jnp.where(deep, lower, upper), upper, G_lower, G_upper)
+    _, t_cross = bracketed_root(G, jnp.where(deep, lower, upper), upper, G_lower, G_upper,
+                                finder=finder)
 
     found = crossing | dip_hits | hump_hits
     time = jnp.where(touch, t_ext, t_cross)

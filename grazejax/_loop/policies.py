@@ -156,14 +156,16 @@ def locate_release(ctx: "LoopContext", c: "LoopState", sa, sb, y1, y_of, detecti
     def bracket():
         # The maximum of Φ̈ (root of its rate, from > 0 to < 0); inactive lanes get an
         # empty bracket, so they cost no iterations under vmap.
-        _, s_max = bracketed_root(rate, jnp.where(peak, sa, sb), sb, rate_a, rate_b)
+        _, s_max = bracketed_root(rate, jnp.where(peak, sa, sb), sb, rate_a, rate_b,
+                                  finder=ctx.event_root_finder)
         s_max = jnp.where(peak, s_max, sb)
         pull_max = jnp.where(peak, pull_along(s_max), pull_b)
         release = at_end | (peak & (pull_max >= 0))
         # bracketed_root wants f(lo) > 0 >= f(hi): search the sign change of −Φ̈;
         # `hi` is the first point at or past it, so the state leaves pulled away.
         lo = jnp.where(release & (pull_a < 0), sa, s_max)
-        _, hi = bracketed_root(lambda s_: -pull_along(s_), lo, s_max, -pull_a, -pull_max)
+        _, hi = bracketed_root(lambda s_: -pull_along(s_), lo, s_max, -pull_a, -pull_max,
+                               finder=ctx.event_root_finder)
         return release, hi
 
     release, t_release = lax.cond(

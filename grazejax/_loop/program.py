@@ -12,6 +12,7 @@ import jax.numpy as jnp
 
 from .._adjoint import loop_kinds
 from .._geometry import backward_piece, forward_piece
+from .._roots import AbstractBracketedRootFinder, Chandrupatla
 from .._scene import Scene
 from .._solution import Solution
 from .._status import ImpactKind, Status
@@ -55,7 +56,7 @@ class Program(eqx.Module):
 def build_program(
     scene: Scene, checked, *, solver, rtol, atol, stepsize_controller, dt0, max_impacts,
     max_steps, zeno_rtol, zeno="stop", adjoint=None, check_field_jumps=True, args=None,
-    batched=False,
+    batched=False, event_root_finder=None,
 ) -> Program:
     """The loop functions for `scene`, with inputs checked by `validate_inputs`.
 
@@ -67,6 +68,7 @@ def build_program(
         stepsize_controller=stepsize_controller, dt0=dt0, max_impacts=max_impacts,
         max_steps=max_steps, zeno_rtol=zeno_rtol, zeno=zeno, adjoint=adjoint,
         check_field_jumps=check_field_jumps, args=args, batched=batched,
+        event_root_finder=event_root_finder,
     )
     # (functools.partial, not bound methods: `Program`'s static fields hash by identity.)
     step_ = functools.partial(step, ctx)
@@ -83,8 +85,18 @@ def build_program(
 def build_context(
     scene: Scene, checked, *, solver, rtol, atol, stepsize_controller, dt0, max_impacts,
     max_steps, zeno_rtol, zeno, adjoint, check_field_jumps=True, args=None, batched=False,
+    event_root_finder=None,
 ) -> LoopContext:
     policy = as_zeno_policy(zeno)
+    if event_root_finder is not None and not isinstance(
+        event_root_finder, AbstractBracketedRootFinder
+    ):
+        raise TypeError(
+            "event_root_finder must be a grazejax bracketed root finder (grazejax.Chandrupatla(), "
+            f"grazejax.ITP() or grazejax.BracketedNewton()), got {type(event_root_finder).__name__}: "
+            "every root the loop looks for is bracketed inside one step, and the search must "
+            "not leave it"
+        )
     if policy.slides and checked.sigma < 0:
         raise ValueError(
             "zeno='stick' is forward time only: a backward run cannot tell where a sliding "
@@ -132,7 +144,9 @@ def build_context(
         eps=jnp.finfo(dtype).eps,
         tol_r=getattr(controller, "rtol", rtol), tol_a=getattr(controller, "atol", atol),
         solver=solver, controller=controller, has_error=has_error, term=term,
-        error_order=solver.error_order(term), kinds=kinds, policy=policy, sticky=sticky,
+        error_order=solver.error_order(term), kinds=kinds, policy=policy,
+        event_root_finder=Chandrupatla() if event_root_finder is None else event_root_finder,
+        sticky=sticky,
         batched=bool(batched),
         # A field that cannot jump needs no probe (neither compiled nor run): 8% of an
         # ex1dof run's compile time and 20 of its 212 fusions.
