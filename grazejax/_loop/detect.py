@@ -4,7 +4,6 @@
 import functools
 from typing import Any, NamedTuple
 
-import equinox.internal as eqxi
 import jax
 import jax.lax as lax
 import jax.numpy as jnp
@@ -15,7 +14,6 @@ from .compact import per_lane
 from .context import LoopContext
 from .events import Contact, locate
 from .gaps import step_floor
-from .policies import locate_release
 from .state import LoopState
 from .step import Step
 
@@ -56,18 +54,12 @@ def detect(ctx: LoopContext, c: LoopState, step: Step, slides: bool = True) -> D
     # (A scene without surfaces is a plain ODE solve: no contact, ever.)
     first = jax.lax.stop_gradient(jnp.min(times)) if ctx.m > 0 else jnp.array(jnp.inf, ctx.dtype)
     releasing = jnp.array(False)
-    if ctx.sticky and slides:
-        # Φ̈ of the slid-on surface at both ends, only while some lane slides (every step
-        # would pay for it in runs that never slide).
-        def release_test():
-            return locate_release(ctx, c, sa, sb, y1, step.interp.evaluate, detecting)
-
-        def no_release():
-            return jnp.array(False), jnp.array(jnp.inf, ctx.dtype)
-
-        release, t_release = lax.cond(
-            eqxi.unvmap_any(detecting & jnp.any(c.stick)), release_test, no_release
-        )
+    found_release = None
+    if slides:  # (the end of sliding, where the policy slides: `find_release`)
+        found_release = ctx.policy.find_release(ctx, c, sa, sb, y1, step.interp.evaluate,
+                                                detecting)
+    if found_release is not None:
+        release, t_release = found_release
         releasing = release & (t_release <= first)
         first = jnp.minimum(first, t_release)
         event = event | release

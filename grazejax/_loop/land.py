@@ -11,10 +11,9 @@ from .._geometry import FLOOR_ULPS, is_tangential
 from .._roots import safe_divide
 from .._status import Status
 from .._tangents import undefined_derivative
-from .compact import if_any_lane, per_lane
+from .compact import per_lane
 from .context import LoopContext
 from .field import field_jumps
-from .policies import keep_sliding, start_or_end_sliding, zeno_test
 from .state import (
     LoopState,
     dd_add,
@@ -108,24 +107,13 @@ def _land(ctx: LoopContext, c: LoopState, y_star, sa, s_star):
                                          t_event_lo, x_post, args_, x_scale, step_ulps,
                                          x_before=y_event)
     bad_side = bad_side | (applied_any & enters)
-    released = jnp.zeros((ctx.m,), bool)
-    if ctx.sticky:
-        restart, stuck_each, released = keep_sliding(
-            ctx, c, lands, t_event, x_post, restart, stuck_each
-        )
-    stuck = jnp.any(stuck_each)
-
-    zeno, intervals, zeno_time = zeno_test(ctx, c, s_event, t_event, stuck, applied_any)
-    if ctx.sticky:
-        zeno, stick, x_post, event_row, intervals = start_or_end_sliding(
-            ctx, c, lands, t_event, x_post, zeno, stuck, stuck_each, pushed_in, applied,
-            applied_any, released, intervals,
-        )
+    restart, zeno, intervals, zeno_time, stick, x_post, event_row = ctx.policy.after_jumps(
+        ctx, c, lands, s_event, t_event, x_post, restart, stuck_each, pushed_in, applied,
+        applied_any,
+    )
+    if event_row is not None:  # (a start or end of sliding)
         rows.append(event_row)
         num_impacts = num_impacts + event_row[0]
-    else:
-        zeno = zeno | stuck
-        stick = c.stick
 
     # The field the next flight starts in must not jump at its first state (the sign(·)
     # trap, `field.py`): compiled only if asked for (the default).
@@ -179,17 +167,7 @@ def _newton_event_time(ctx: LoopContext, c: LoopState, y_star, sa, s_star):
             use = c.pending[i, k] & ~c.touch[i, k] & ~chosen
             step = newton(use, g, gd, gdd, step)
             chosen = chosen | use
-    if ctx.sticky:
-        # A release: the same Newton step on the free Φ̈ of the sliding surface, along
-        # the sliding flow, so that jacfwd gets the release time's tangent (first order).
-        def release_newton():
-            r, r_dot = jax.jvp(
-                lambda s_, y_: ctx.sliding_pull(c.stick, s_, y_, t_hi, t_lo, args_),
-                (s_star, y_star), (jnp.ones_like(s_star), f_star),
-            )
-            return newton(c.releasing, r, r_dot, jnp.zeros_like(r), step)
-
-        step = if_any_lane(c.releasing, release_newton, step)
+    step = ctx.policy.release_newton(ctx, c, s_star, y_star, f_star, newton, step)
     delta, bend = step
     # (no multiplication in δ − δ: its value is exactly 0 whatever the compiler fuses)
     q = (delta - jax.lax.stop_gradient(delta)) ** 2

@@ -1,6 +1,7 @@
 """What the loop does at a Zeno accumulation or a sticking contact: the policy classes and
 the sliding phase of `ZenoStick` (compiled in only when that policy is chosen)."""
 
+import abc
 from typing import TYPE_CHECKING, ClassVar
 
 import equinox as eqx
@@ -26,10 +27,43 @@ class AbstractZenoPolicy(eqx.Module):
 
     Pass an instance as `simulate(..., zeno=...)` or `sweep(..., zeno=...)`; the strings
     `"stop"` and `"stick"` mean [`grazejax.ZenoStop`][] and [`grazejax.ZenoStick`][].
+
+    The loop's phases call a policy's methods where the two differ (they take the loop's
+    own context and state: hooks of the loop, not a user extension point): `start` at t0,
+    `after_jumps` at every landing, `solver_step`, `find_release` and `release_newton`
+    in every step.
     """
 
     # Whether the sliding phase is compiled into the loop (static structure, not a number).
     slides: eqx.AbstractClassVar[bool]
+
+    @abc.abstractmethod
+    def start(self, ctx: "LoopContext", x0, args, stuck0, resting0, status0, log):
+        """A start at rest on a surface, pushed in (`stuck0`; `resting0`: on an
+        impenetrable one). Returns `(x0, stick0, log, num_impacts0, status0, zeno_time0)`."""
+
+    @abc.abstractmethod
+    def after_jumps(
+        self, ctx: "LoopContext", c: "LoopState", lands, s_event, t_event, x_post, restart,
+        stuck_each, pushed_in, applied, applied_any,
+    ):
+        """The Zeno test (and sliding) at the post-impact state `x_post`. Returns
+        `(restart, zeno, intervals, zeno_time, stick, x_post, event_row)`, `event_row` a
+        log row (a start or end of sliding) or None."""
+
+    def solver_step(self, ctx: "LoopContext", c: "LoopState", step_with, slides: bool):
+        """The solver's step, `step_with(term)`, in the field the lanes' phases call for."""
+        return step_with(ctx.free_term)
+
+    def find_release(self, ctx: "LoopContext", c: "LoopState", sa, sb, y1, y_of, detecting):
+        """The end of sliding in the step: `(release, t_release)`, or None where nothing
+        slides."""
+        return None
+
+    def release_newton(self, ctx: "LoopContext", c: "LoopState", s_star, y_star, f_star,
+                       newton, step):
+        """The landing's Newton step at a release (`_loop/land.py`), or `step` unchanged."""
+        return step
 
 
 class ZenoStop(AbstractZenoPolicy):
@@ -39,6 +73,21 @@ class ZenoStop(AbstractZenoPolicy):
     """
 
     slides: ClassVar[bool] = False
+
+    def start(self, ctx, x0, args, stuck0, resting0, status0, log):
+        # On an impenetrable surface, pushed in: ZENO at t0 (as after a tangential
+        # restart); on another the flight simply starts, into Φ < 0 (the paper's setting:
+        # Φ < 0 is not forbidden, only met from above).
+        resting0 = resting0 & (status0 == int(Status.SUCCESS))
+        status0 = jnp.where(resting0, int(Status.ZENO), status0)
+        zeno_time0 = jnp.where(resting0, ctx.t0, ctx.nan)
+        return x0, jnp.zeros((ctx.m,), bool), log, jnp.array(0), status0, zeno_time0
+
+    def after_jumps(self, ctx, c, lands, s_event, t_event, x_post, restart, stuck_each,
+                    pushed_in, applied, applied_any):
+        stuck = jnp.any(stuck_each)
+        zeno, intervals, zeno_time = zeno_test(ctx, c, s_event, t_event, stuck, applied_any)
+        return restart, zeno | stuck, intervals, zeno_time, c.stick, x_post, None
 
 
 class ZenoStick(AbstractZenoPolicy):
@@ -58,6 +107,59 @@ class ZenoStick(AbstractZenoPolicy):
     """
 
     slides: ClassVar[bool] = True
+
+    def start(self, ctx, x0, args, stuck0, resting0, status0, log):
+        return stick_at_start(ctx, x0, args, stuck0, status0, ctx.nan, log)
+
+    def after_jumps(self, ctx, c, lands, s_event, t_event, x_post, restart, stuck_each,
+                    pushed_in, applied, applied_any):
+        restart, stuck_each, released = keep_sliding(
+            ctx, c, lands, t_event, x_post, restart, stuck_each
+        )
+        stuck = jnp.any(stuck_each)
+        zeno, intervals, zeno_time = zeno_test(ctx, c, s_event, t_event, stuck, applied_any)
+        zeno, stick, x_post, event_row, intervals = start_or_end_sliding(
+            ctx, c, lands, t_event, x_post, zeno, stuck, stuck_each, pushed_in, applied,
+            applied_any, released, intervals,
+        )
+        return restart, zeno, intervals, zeno_time, stick, x_post, event_row
+
+    def solver_step(self, ctx, c, step_with, slides):
+        if not slides:
+            return step_with(ctx.free_term)
+        # The sliding field only while some lane slides: decided once per step, not per
+        # stage (the field's own `cond`, evaluated in each of the 6–13 stages, made
+        # zeno="stick" cost half as much again in runs that never slide). The free
+        # field is the sliding field's no-lane-slides branch: results are unchanged.
+        return lax.cond(
+            eqxi.unvmap_any(jnp.any(c.stick)),
+            lambda: step_with(ctx.term), lambda: step_with(ctx.free_term),
+        )
+
+    def find_release(self, ctx, c, sa, sb, y1, y_of, detecting):
+        # Φ̈ of the slid-on surface at both ends, only while some lane slides (every step
+        # would pay for it in runs that never slide).
+        def release_test():
+            return locate_release(ctx, c, sa, sb, y1, y_of, detecting)
+
+        def no_release():
+            return jnp.array(False), jnp.array(jnp.inf, ctx.dtype)
+
+        return lax.cond(eqxi.unvmap_any(detecting & jnp.any(c.stick)), release_test, no_release)
+
+    def release_newton(self, ctx, c, s_star, y_star, f_star, newton, step):
+        # The same Newton step on the free Φ̈ of the sliding surface, along the sliding
+        # flow, so that jacfwd gets the release time's tangent (first order).
+        t_hi, t_lo, args_ = c.t_hi, c.t_lo, c.args
+
+        def release_step():
+            r, r_dot = jax.jvp(
+                lambda s_, y_: ctx.sliding_pull(c.stick, s_, y_, t_hi, t_lo, args_),
+                (s_star, y_star), (jnp.ones_like(s_star), f_star),
+            )
+            return newton(c.releasing, r, r_dot, jnp.zeros_like(r), step)
+
+        return if_any_lane(c.releasing, release_step, step)
 
 
 _BY_NAME = {"stop": ZenoStop, "stick": ZenoStick}

@@ -21,7 +21,7 @@ from .context import LoopContext, loop_field
 from .detect import Detection, detect, nothing_detected
 from .field import continuous_in_state, field_jumps
 from .land import land_if_due
-from .policies import as_zeno_policy, stick_at_start
+from .policies import ZenoStop, as_zeno_policy
 from .state import LoopState, seed_fixed_point
 from .step import Step, take_step
 from .stepping import loop_controller
@@ -135,7 +135,9 @@ def build_context(
         pieces = tuple(backward_piece(s, f) for s in scene.surfaces)
         impact_kinds = (ImpactKind.ALPHA_PRIME, ImpactKind.BETA_PRIME, ImpactKind.GAMMA_PRIME)
     m = len(pieces)
-    sticky = policy.slides and m > 0
+    if m == 0:  # (nothing to slide on: the sliding phase is not compiled)
+        policy = ZenoStop()
+    sticky = policy.slides
     term = diffrax.ODETerm(loop_field(f, pieces, sigma, sticky))
     return LoopContext(
         vector_field=f, pieces=pieces, impact_kinds=impact_kinds, sigma=sigma,
@@ -198,12 +200,6 @@ def init(ctx: LoopContext, x0, args) -> LoopState:
         status0 = jnp.where(
             (status0 == int(Status.SUCCESS)) & jumps0, int(Status.FIELD_DISCONTINUITY), status0
         )
-    zeno_time0 = ctx.nan
-    if not ctx.sticky:
-        resting0 = resting0 & (status0 == int(Status.SUCCESS))
-        status0 = jnp.where(resting0, int(Status.ZENO), status0)
-        zeno_time0 = jnp.where(resting0, t0, zeno_time0)
-    stick0 = jnp.zeros((m,), bool)
     log = (
         jnp.full((ctx.max_impacts,), jnp.nan, dtype),
         jnp.full((ctx.max_impacts, n), jnp.nan, dtype),
@@ -211,15 +207,13 @@ def init(ctx: LoopContext, x0, args) -> LoopState:
         jnp.full((ctx.max_impacts,), -1),
         jnp.full((ctx.max_impacts,), int(ImpactKind.NONE)),
     )
-    num_impacts0 = jnp.array(0)
     # Traced times are not checked before the run (`validate_inputs` needs values): a t1
     # behind t0 in the compiled direction would run the other way, with the other
     # direction's surfaces. Such a run does not start.
     wrong_way = ctx.sigma * (t1 - t0) < 0
-    if ctx.sticky:
-        x0, stick0, log, num_impacts0, status0, zeno_time0 = stick_at_start(
-            ctx, x0, args, stuck0 & ~wrong_way, status0, zeno_time0, log
-        )
+    x0, stick0, log, num_impacts0, status0, zeno_time0 = ctx.policy.start(
+        ctx, x0, args, stuck0 & ~wrong_way, resting0, status0, log
+    )
     status0 = jnp.where(wrong_way, int(Status.BAD_TIMES), status0)
     if ctx.ts is not None:
         save_xs0 = jnp.full((ctx.ts.shape[0], n), jnp.nan, dtype)

@@ -3,9 +3,7 @@
 from typing import Any, NamedTuple
 
 import diffrax
-import equinox.internal as eqxi
 import jax
-import jax.lax as lax
 import jax.numpy as jnp
 from jaxtyping import PyTree
 
@@ -55,17 +53,7 @@ def take_step(ctx: LoopContext, c: LoopState, slides: bool = True, forced=None,
     def step_with(term):
         return solver.step(term, sa, sb, c.y, targs, c.solver_state, c.made_jump)
 
-    if ctx.sticky and slides:
-        # The sliding field only while some lane slides: decided once per step, not per
-        # stage (the field's own `cond`, evaluated in each of the 6–13 stages, made
-        # zeno="stick" cost half as much again in runs that never slide). The free
-        # field is the sliding field's no-lane-slides branch: results are unchanged.
-        y1, y_error, dense_info, solver_state1, _ = lax.cond(
-            eqxi.unvmap_any(jnp.any(c.stick)),
-            lambda: step_with(ctx.term), lambda: step_with(ctx.free_term),
-        )
-    else:
-        y1, y_error, dense_info, solver_state1, _ = step_with(ctx.free_term)
+    y1, y_error, dense_info, solver_state1, _ = ctx.policy.solver_step(ctx, c, step_with, slides)
     # A NaN error estimate must reject the step, not poison the controller (diffrax #143).
     y_error = error_or_zero(y_error, y1)
     y_error = jnp.where(jnp.isnan(y_error), jnp.inf, y_error)
