@@ -38,20 +38,10 @@ import numpy as np
 
 from ._adjoint import loop_kinds
 from ._compiler import compiler_options
-from ._loop.bounded import bounded_while_loop
 from ._loop.compact import under_vmap
-from ._loop.forward import mark_forward_only, staged_log_loop, stages_log
 from ._loop.policies import AbstractZenoPolicy
-from ._loop.program import Program, build_program
-from ._loop.reverse import (
-    checkpoint_count,
-    checkpointed_deciding,
-    every_step_staged,
-    every_step_stored,
-    stores_pay,
-    two_level_checkpointed,
-)
-from ._loop.state import packing
+from ._loop.program import build_program
+from ._loop.runners import loop_for
 from ._roots import AbstractBracketedRootFinder
 from ._scene import Scene
 from ._solution import ACCEPTED, FIELD_FIX, SimulationError, Solution, failure_message
@@ -242,7 +232,8 @@ def _run(scene, x0, t0, t1, args, *, saveat, direction, adjoint, max_steps, **op
         # are frozen by `step` itself, so the loop can run until the last lane is done.
         return eqxi.unvmap_any(program.running(c))
 
-    final = run_loop(cond, program, program.init(checked.x0, args), adjoint, max_steps)
+    loop = loop_for(loop_kinds(adjoint))
+    final = loop.run(cond, program, program.init(checked.x0, args), max_steps)
     return program.finish(final)
 
 
@@ -297,32 +288,6 @@ def _traced_numbers(args):
         return args
     return jax.tree.unflatten(tree, [jnp.asarray(leaf) if isinstance(leaf, float | np.floating)
                                      else leaf for leaf in leaves])
-
-
-def run_loop(cond, program: "Program", init, adjoint, max_steps: int):
-    """`while cond: step`, as the loop kind that `adjoint` asks for (see `_adjoint`)."""
-    kinds = loop_kinds(adjoint)
-    if kinds.outer == "lax":
-        final = staged_log_loop(cond, program, init)
-        # Name the fix if someone asks for reverse mode (the bare error names lax.while_loop).
-        return mark_forward_only(final)
-    if kinds.outer == "checkpointed":
-        checkpoints = checkpoint_count(kinds.checkpoints, max_steps)
-        if checkpoints is None:
-            return two_level_checkpointed(cond, program, init, max_steps + 1)
-        if checkpoints == max_steps + 1 and stores_pay(program, init):
-            return every_step_stored(cond, program, init, max_steps + 1)
-        if checkpoints == max_steps + 1 and stages_log(program, init):
-            return every_step_staged(cond, program, init, max_steps + 1)
-        pack, unpack = packing(init)
-        final, _ = checkpointed_deciding(
-            lambda packed: cond(unpack(packed)), program, pack, unpack, init, max_steps + 1,
-            checkpoints, buffers=True)
-        return unpack(final)
-    # DirectAdjoint: nested scans whose recomputation replays the step decisions
-    # (`_loop/bounded.py`). The log stays in the carry: as Equinox buffers it cost about
-    # twice as much (`benchmarks/README.md`).
-    return bounded_while_loop(cond, program.step, init, max_steps + 1)
 
 
 def prepare(scene, x0, t0, t1, args, *, saveat, direction, allow_float32, max_impacts,

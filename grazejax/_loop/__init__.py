@@ -13,7 +13,8 @@
   whether the samples resolve it) and the located contact.
 - `detect.py`: the search for a contact inside an accepted step.
 - `land.py`: the landing step: Newton correction of the event time, jumps, impact log.
-- `policies.py`: what happens at a Zeno accumulation or a sticking contact.
+- `policies.py`: what happens at a Zeno accumulation or a sticking contact: the Zeno
+  policies, with the hooks the phases call.
 - `program.py`: `init`, `step`, `running`, `finish` of one lane, as a `Program`.
 - `compact.py`: phases that only some lanes need, paid for by those lanes under `vmap`.
 - `pool.py`: a refilling pool of lane slots that runs `Program.step` (`sweep`'s
@@ -25,4 +26,6 @@
   `stored.py` (each step's linearisation stored) and `bounded.py` (`DirectAdjoint`'s
   nested scans).
 - `replay.py`: the step decisions that reverse mode's re-runs of steps replay.
+- `runners.py`: one loop class per kind of `adjoint` (`ForwardLoop`, `CheckpointedLoop`,
+  `BoundedLoop`), each running its own loop over the program's phases.
 """

@@ -1,6 +1,6 @@
 """The impact loop in reverse mode: the loops that `jax.grad` differentiates.
 
-Which loop runs is `simulate`'s choice (`_simulate.run_loop`, by `adjoint`):
+Which loop runs is `CheckpointedLoop`'s choice (`runners.py`, by `adjoint`):
 `two_level_checkpointed` (the default `RecursiveCheckpointAdjoint()`), `every_step_stored`
 or `every_step_staged` (a checkpoint per step), `checkpointed_deciding` (Equinox's
 checkpointed loop with a given number of checkpoints). Every loop that runs steps again in
