@@ -20,8 +20,8 @@ import scipy.optimize
 import grazejax as gj
 from grazejax import examples as ex
 
-from .test_continuation import _osc_08, _scipy_period_map
-from .test_periodic import period_one_closed_form
+from .orbits.test_continuation import _osc_08, _scipy_period_map
+from .orbits.test_periodic import period_one_closed_form
 from .test_piecewise import filippov_belt, relay_half_period_scipy
 
 TOL = 1e-10

@@ -21,7 +21,7 @@ from grazejax._orbits.contacts import grazing_branches, orbit_contacts
 from grazejax._orbits.floquet import floquet_multipliers, product_eigenvalues, saltation
 from grazejax._orbits.periodic import OrbitStatus, find_periodic_orbit
 
-from .helpers import central_differences
+from ..helpers import central_differences
 
 EX1DOF = ex.ex1dof()
 EPS = 1e-4

@@ -17,7 +17,7 @@ import grazejax as gj
 import grazejax._loop.forward as forward_module
 from grazejax import examples as ex
 
-from .helpers import unit_box
+from ..helpers import unit_box
 
 SMALL, LARGE = 16, 100  # ex1dof rows of 2 states: 256 bytes (plain loop) and 1600 (staged)
 BOX_ARGS = {"rx": 0.9, "ry": 0.9}

@@ -1,0 +1,1 @@
+"""Tests of the impact loop's own modules (`grazejax/_loop/`)."""

@@ -1,0 +1,1 @@
+"""Tests of periodic orbits, continuation, grazing curves and bifurcations (`grazejax/_orbits/`)."""
