@@ -42,13 +42,13 @@ from ._orbits.bifurcation import BifurcationPoint as BifurcationPoint
 from ._orbits.bifurcation_curve import BifurcationCurve as BifurcationCurve
 from ._orbits.bifurcation_curve import Codim2Point as Codim2Point
 from ._orbits.bifurcation_curve import continue_bifurcation as continue_bifurcation
+from ._orbits.branch import Branch as Branch
+from ._orbits.branch import GrazingPoint as GrazingPoint
+from ._orbits.branch import SpecialPoint as SpecialPoint
 from ._orbits.contacts import Contacts as Contacts
 from ._orbits.contacts import GrazingBranches as GrazingBranches
 from ._orbits.contacts import grazing_branches as grazing_branches
 from ._orbits.contacts import orbit_contacts as orbit_contacts
-from ._orbits.continuation import Branch as Branch
-from ._orbits.continuation import GrazingPoint as GrazingPoint
-from ._orbits.continuation import SpecialPoint as SpecialPoint
 from ._orbits.continuation import continue_orbit as continue_orbit
 from ._orbits.continuation import period_doubled_orbit as period_doubled_orbit
 from ._orbits.floquet import Floquet as Floquet

@@ -43,7 +43,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._geometry import project_to_surface
-from ._orbits.continuation import Branch
+from ._orbits.branch import Branch
 from ._scene import Scene
 from ._status import ImpactKind
 

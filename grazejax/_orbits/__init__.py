@@ -6,6 +6,9 @@ Each module calls only those below it, and only the period map calls `simulate`:
   (`locate_bifurcation`, every kind), `grazing_curve` (`continue_grazing`,
   `locate_grazing`), `continuation` (`continue_orbit`): the front ends, each of the first
   two passing a grazing point to the grazing one;
+- `switching` (grazing located and switched through, special points between accepted
+  points), `family` (one family's unknown, corrector and corrected points) and `branch`
+  (`Branch`, `GrazingPoint`, `SpecialPoint`): `continue_orbit`'s parts;
 - `bifurcation`: the defining systems of fold, period-doubling and Neimark–Sacker points,
   solved by Newton (`locate_special`);
 - `arclength`: the one pseudo-arclength engine and its corrector;

@@ -51,8 +51,8 @@ from .arclength import (
     write_text,
 )
 from .bifurcation import BifurcationPoint, assessed_point, newton
+from .branch import GrazingPoint
 from .contacts import orbit_contacts
-from .continuation import GrazingPoint
 from .period_map import PeriodMap, SolverSettings, newton_for, orbit_kernel, sampled_states
 from .periodic import Orbit, OrbitStatus
 

@@ -7,7 +7,7 @@ import diffrax
 
 from .._scene import Scene
 from .bifurcation import BifurcationPoint, locate_special
-from .continuation import GrazingPoint
+from .branch import GrazingPoint
 from .grazing_curve import locate_grazing
 
 
