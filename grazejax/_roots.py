@@ -93,9 +93,9 @@ def bracketed_root(
 
     Why to machine precision by default: the landing step's Newton correction leaves an
     error e²·|g''|/(2|g'|) for a proposal error e, which is not small near grazing or in a
-    Zeno sequence (|g'| → 0) when the step is much longer than the flight (measured: a
-    1e-10-of-a-step proposal gave 1e-8 relative flight-time errors late in a bouncing
-    ball's Zeno sequence).
+    Zeno sequence (|g'| → 0) when the step is much longer than the flight: late in a
+    bouncing ball's Zeno sequence a proposal good to a small fraction of the step still
+    left flight-time errors far above the tolerance (`benchmarks/README.md`).
     """
     finder = Chandrupatla() if finder is None else finder
     lo, hi, f_lo, f_hi = (lax.stop_gradient(v) for v in (lo, hi, f_lo, f_hi))

@@ -5,10 +5,9 @@ to land on each contact, so a controller must propose the next step from the las
 Diffrax's adaptive controllers do. Diffrax's `ConstantStepSize` does not: since diffrax 0.7 it
 places step ends at fractions of the whole interval `[t0, t1]` with a step counter (diffrax
 PR #666), which knows nothing of the loop's restarts and landings; used as is, the first step
-after an impact jumped to the end of the interval (measured: ex1dof with dt0 = 0.01 ended at
-(0.99, 3.82) where the truth is (1.27, −0.98)). `FixedStep` is the loop's own constant step:
-every free step is `dt0` long, a landing step ends on the contact, and the next flight starts
-with `dt0` again.
+after an impact jumped to the end of the interval, and a run ended far from the truth.
+`FixedStep` is the loop's own constant step: every free step is `dt0` long, a landing step
+ends on the contact, and the next flight starts with `dt0` again.
 """
 
 import math
