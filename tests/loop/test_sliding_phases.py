@@ -16,7 +16,7 @@ import pytest
 
 import grazejax as gj
 import grazejax._loop.pool as pool_module
-import grazejax._simulate as simulate_module
+import grazejax._loop.runners as runners_module
 from grazejax import examples as ex
 
 TABLE_ARGS = {"g": 9.81, "e": 0.3, "A": 0.1, "omega": 12.0}  # A ω² > g: releases
@@ -33,7 +33,7 @@ def flat_loop(monkeypatch):
     class Flat:
         def __enter__(self):
             monkeypatch.setattr(
-                simulate_module, "staged_log_loop",
+                runners_module, "staged_log_loop",
                 lambda cond, program, init: lax.while_loop(cond, program.step, init),
             )
 
