@@ -46,8 +46,6 @@ class LoopContext(eqx.Module):
     kinds: LoopKinds
     policy: AbstractZenoPolicy
     event_root_finder: AbstractBracketedRootFinder  # every bracketed search of the loop (`_roots`)
-    # Sliding is compiled in only when asked for (ZenoStick) and there is a surface.
-    sticky: bool
     # The loop runs on a batch of lanes (`jax.vmap`, `sweep`'s pool): the impact log's
     # row writes then run only on iterations where some lane writes (`write_log_rows`).
     batched: bool
@@ -60,6 +58,12 @@ class LoopContext(eqx.Module):
     zeno_rtol: float
     zero: RealScalar
     nan: RealScalar
+
+    @property
+    def sticky(self) -> bool:
+        """Whether sliding is compiled in: the policy slides (ZenoStick) and there is a
+        surface (`build_context` runs a scene without surfaces with ZenoStop)."""
+        return self.policy.slides
 
     @property
     def free_term(self) -> diffrax.ODETerm:

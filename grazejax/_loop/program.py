@@ -137,8 +137,7 @@ def build_context(
     m = len(pieces)
     if m == 0:  # (nothing to slide on: the sliding phase is not compiled)
         policy = ZenoStop()
-    sticky = policy.slides
-    term = diffrax.ODETerm(loop_field(f, pieces, sigma, sticky))
+    term = diffrax.ODETerm(loop_field(f, pieces, sigma, policy.slides))
     return LoopContext(
         vector_field=f, pieces=pieces, impact_kinds=impact_kinds, sigma=sigma,
         t0=checked.t0, t1=checked.t1, ts=checked.ts, dtype=dtype, n=checked.x0.shape[0],
@@ -148,7 +147,6 @@ def build_context(
         solver=solver, controller=controller, has_error=has_error, term=term,
         error_order=solver.error_order(term), kinds=kinds, policy=policy,
         event_root_finder=Chandrupatla() if event_root_finder is None else event_root_finder,
-        sticky=sticky,
         batched=bool(batched),
         # A field that cannot jump needs no probe (neither compiled nor run): 8% of an
         # ex1dof run's compile time and 20 of its 212 fusions.
