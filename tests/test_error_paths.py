@@ -241,7 +241,8 @@ def test_sweep_t0_equals_t1():
     [
         ("ex1dof", [2.0, 0.0], {}, TypeError, "scene must be a grazejax.Scene, got str"),
         (None, [[2.0, 0.0]], {}, ValueError, r"x0 must be a state vector of shape \(n,\)"),
-        (None, [2.0, 0.0], dict(max_steps=0), ValueError, "max_steps must be a positive integer"),
+        (None, [2.0, 0.0], dict(max_newton_steps=0), ValueError,
+         "max_newton_steps must be a positive integer"),
         (
             None,
             [2.0, 0.0],
@@ -263,6 +264,31 @@ def test_find_periodic_orbit_bad_input(scene, x0, kwargs, error, match):
     scene = ex.ex1dof() if scene is None else scene
     with pytest.raises(error, match=match):
         gj.find_periodic_orbit(scene, x0, 6.0, ex.ex1dof_args(0.0), **kwargs)
+
+
+def test_max_steps_of_find_periodic_orbit_is_renamed_max_newton_steps():
+    # `max_steps` is simulate's solver steps; the orbit solvers' Newton iterations are
+    # `max_newton_steps` (as in the continuation functions). The old keyword still works,
+    # with a warning.
+    with pytest.warns(DeprecationWarning, match="'max_steps' is renamed 'max_newton_steps'"):
+        with pytest.raises(ValueError, match="max_newton_steps must be a positive integer"):
+            gj.find_periodic_orbit(ex.ex1dof(), [2.0, 0.0], 6.0, ex.ex1dof_args(0.0),
+                                   max_steps=0)
+
+
+@pytest.mark.parametrize("function", ["find_periodic_orbit", "locate_bifurcation",
+                                      "locate_grazing"])
+def test_the_old_and_new_names_together_are_an_error(function):
+    with pytest.raises(TypeError, match="got both 'max_steps' and 'max_newton_steps'"):
+        getattr(gj, function)(None, None, None, None, max_steps=3, max_newton_steps=3)
+
+
+def test_solver_settings_max_steps_is_a_deprecated_alias():
+    settings = gj.SolverSettings(solver="default", rtol=1e-10, atol=1e-12, newton_rtol=1e-8,
+                                 newton_atol=1e-8, max_newton_steps=7, max_solver_steps=10,
+                                 max_impacts=4, state_scale=1.0)
+    with pytest.warns(DeprecationWarning, match="renamed max_newton_steps"):
+        assert settings.max_steps == 7
 
 
 def test_start_at_impact_without_an_impact_near_the_period():

@@ -204,7 +204,7 @@ def continuation_settings(orbit, rtol, atol, solver, newton_tol, max_newton_step
     settings = SolverSettings(
         solver=solver_name(solver), rtol=float(rtol), atol=float(atol),
         newton_rtol=float(newton_tol), newton_atol=float(newton_tol) * scale,
-        max_steps=int(max_newton_steps), max_solver_steps=50_000, max_impacts=64,
+        max_newton_steps=int(max_newton_steps), max_solver_steps=50_000, max_impacts=64,
         state_scale=scale,
     )
     return kw, settings, scale
@@ -227,7 +227,7 @@ def eigvals_descending(matrix) -> np.ndarray:
     return w[np.argsort(-np.abs(w), kind="stable")].astype(complex)
 
 
-def bordered_newton(rows_of, root_finder, max_steps, Y_pred, tangent):
+def bordered_newton(rows_of, root_finder, max_newton_steps, Y_pred, tangent):
     """Newton (`optx.root_find`) on [rows(Y); tangent·(Y − Y_pred)] = 0: the
     pseudo-arclength corrector. Returns (Y, converged, number of steps)."""
     import optimistix as optx
@@ -236,5 +236,5 @@ def bordered_newton(rows_of, root_finder, max_steps, Y_pred, tangent):
         return jnp.concatenate([rows_of(Y), jnp.dot(tangent, Y - Y_pred)[None]])
 
     solution = optx.root_find(jacobian_in_one_pass(bordered), root_finder, Y_pred, None,
-                              max_steps=max_steps, throw=False)
+                              max_steps=max_newton_steps, throw=False)
     return solution.value, solution.result == optx.RESULTS.successful, solution.stats["num_steps"]

@@ -172,7 +172,7 @@ def locate_special(
     atol: float | None = None,
     solver: diffrax.AbstractSolver | None = None,
     newton_tol: float = 1e-9,
-    max_steps: int = 30,
+    max_newton_steps: int = 30,
     max_impacts: int = 64,
     max_solver_steps: int = 50_000,
     adjoint=None,
@@ -197,7 +197,7 @@ def locate_special(
     params = (jnp.asarray(nu, float), jnp.asarray(x_guess[j] if j >= 0 else 0.0),
               jnp.asarray(t0), jnp.asarray(T_guess))
     root_finder = newton_for(newton_tol, max(scale, 1.0))
-    return _solve(system, root_finder, int(max_steps), jnp.asarray(y0), params)
+    return _solve(system, root_finder, int(max_newton_steps), jnp.asarray(y0), params)
 
 
 def defining_system(scene, point, kind, fixed_period: bool, args_of, period_of, fix, mu, nu,
@@ -232,11 +232,11 @@ def defining_system(scene, point, kind, fixed_period: bool, args_of, period_of, 
 
 
 @orbit_kernel
-def _solve(system: DefiningSystem, root_finder, max_steps: int, y0, params):
+def _solve(system: DefiningSystem, root_finder, max_newton_steps: int, y0, params):
     """Newton on the defining system, then the point's diagnostics (one program per
     system: the same scene, kind and parameter functions reuse it)."""
     y, converged, finite, num_steps = newton(system.residual, root_finder, y0, params,
-                                             max_steps)
+                                             max_newton_steps)
     nu, _, t0, T_fixed = params
     x, T, mu = system.split(y)
     if system.fixed_period:
@@ -244,12 +244,12 @@ def _solve(system: DefiningSystem, root_finder, max_steps: int, y0, params):
     return _assess(system, x, t0, T, mu, nu, converged, finite, num_steps)
 
 
-def newton(residual, root_finder, y0, params, max_steps):
+def newton(residual, root_finder, y0, params, max_newton_steps):
     """`optx.root_find` of `residual(y, params)` from y0, differentiable in `params` by
     the implicit function theorem: `(y, converged, finite, num_steps)`, y0 where the
     iterate is not finite."""
     solution = optx.root_find(jacobian_in_one_pass(residual), root_finder, y0, params,
-                              max_steps=max_steps, throw=False)
+                              max_steps=max_newton_steps, throw=False)
     y = solution.value
     converged = solution.result == optx.RESULTS.successful
     finite = jnp.all(jnp.isfinite(jax.lax.stop_gradient(y)))

@@ -117,7 +117,7 @@ class _Diagnostics(NamedTuple):
 
 
 @orbit_kernel
-def _curve_point(system: DefiningSystem, root_finder, max_steps: int, Y_pred, tangent, params):
+def _curve_point(system: DefiningSystem, root_finder, max_newton_steps: int, Y_pred, tangent, params):
     """The bordered Newton corrector on the defining system with ν free, then the
     corrected orbit's monodromy, period, impact count and whether its run succeeded."""
     c, t0, T_fixed = params
@@ -125,7 +125,7 @@ def _curve_point(system: DefiningSystem, root_finder, max_steps: int, Y_pred, ta
     def rows(Y):
         return system.residual(Y[:-1], (Y[-1], c, t0, T_fixed))
 
-    Y, converged, steps = bordered_newton(rows, root_finder, max_steps, Y_pred, tangent)
+    Y, converged, steps = bordered_newton(rows, root_finder, max_newton_steps, Y_pred, tangent)
     x, T, mu = system.split(Y[:-1])
     nu = Y[-1]
     if system.fixed_period:
@@ -136,7 +136,7 @@ def _curve_point(system: DefiningSystem, root_finder, max_steps: int, Y_pred, ta
     return Y, converged & ok, steps, monodromy, T, sol.num_impacts
 
 
-def _corrector(system, root_finder, max_steps, t0, T_fixed):
+def _corrector(system, root_finder, max_newton_steps, t0, T_fixed):
     """`correct(Y_pred, tangent, origin)` for the engine: the secant from `origin` (the
     previous point) as the new tangent (`tangent` itself at the first point)."""
     x_index = 1 if not system.fixed_period else 0
@@ -148,7 +148,7 @@ def _corrector(system, root_finder, max_steps, t0, T_fixed):
             x_index + system.j])
         params = (jnp.asarray(c), jnp.asarray(t0), jnp.asarray(T_fixed))
         Y, good, steps, monodromy, T, k = _curve_point(
-            system, root_finder, max_steps, jnp.asarray(Y_pred), jnp.asarray(tangent, float),
+            system, root_finder, max_newton_steps, jnp.asarray(Y_pred), jnp.asarray(tangent, float),
             params)
         Y = np.asarray(Y)
         if not (bool(good) and np.all(np.isfinite(Y)) and np.all(np.isfinite(monodromy))):

@@ -183,7 +183,7 @@ def continue_orbit(
     fam = OrbitFamily(
         pmap=pmap, args_of=args_of, period_of=period_of, fixed_period=fixed,
         root_finder=newton_for(newton_tol, scale),
-        max_steps=int(max_newton_steps),
+        max_newton_steps=int(max_newton_steps),
     )
     ts_unit = jnp.linspace(0.0, 1.0, int(num_samples), endpoint=False)
     direction = 1.0 if mu_stop > mu_start else -1.0
@@ -372,7 +372,7 @@ class _Tracer(Front):
             period_of=None if period_of is None else OneParameter(period_of),
             fix=None if self.fixed else self.j, rtol=self.kw["rtol"], atol=self.kw["atol"],
             solver=self.kw["solver"], newton_tol=self.newton_tol,
-            max_steps=self.max_refine_steps,
+            max_newton_steps=self.max_refine_steps,
         )
         mu, width = float(point.mu), hi - lo
         on_family = (int(point.status) == OrbitStatus.SUCCESS

@@ -34,7 +34,7 @@ class OrbitFamily(eqx.Module):
     period_of: Callable | None = eqx.field(static=True)
     fixed_period: bool = eqx.field(static=True)
     root_finder: Any  # (its tolerances are arrays: see `newton_for`)
-    max_steps: int = eqx.field(static=True)
+    max_newton_steps: int = eqx.field(static=True)
 
 
 def unpack_family(fam: OrbitFamily, Y, T_fixed):
@@ -86,7 +86,7 @@ class BranchPoint(NamedTuple):
 def family_corrector(fam: OrbitFamily, Y_pred, tangent, t0, e_j, c, T_fixed):
     """Newton on [F(Y); tangent·(Y − Y_pred)] = 0 (the only program compiled for continuation)."""
     return bordered_newton(lambda Y: poincare_criterion(fam, Y, t0, e_j, c, T_fixed)[0],
-                            fam.root_finder, fam.max_steps, Y_pred, tangent)
+                            fam.root_finder, fam.max_newton_steps, Y_pred, tangent)
 
 
 def correct_point(fam: OrbitFamily, Y_pred, tangent, t0, e_j, c, T_fixed, ts_unit):

@@ -35,6 +35,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._deprecated import NEWTON_STEPS, renamed_keyword
 from .._geometry import gap_rates
 from .._scene import Scene
 from .._status import ContinuationStatus
@@ -125,7 +126,7 @@ class _GrazingSystem(eqx.Module):
     period_of: Callable | None = eqx.field(static=True)
     fixed_period: bool = eqx.field(static=True)
     root_finder: Any  # (its tolerances are arrays: see `newton_for`)
-    max_steps: int = eqx.field(static=True)
+    max_newton_steps: int = eqx.field(static=True)
 
 
 def _unpack(system: _GrazingSystem, Y, t_fixed, T_fixed):
@@ -151,7 +152,7 @@ def _residual(system: _GrazingSystem, Y, t_fixed, T_fixed):
 def _corrector(system: _GrazingSystem, Y_pred, tangent, t_fixed, T_fixed):
     """Newton on [G(Y); tangent·(Y − Y_pred)] = 0."""
     return bordered_newton(lambda Y: _residual(system, Y, t_fixed, T_fixed), system.root_finder,
-                            system.max_steps, Y_pred, tangent)
+                            system.max_newton_steps, Y_pred, tangent)
 
 
 @orbit_kernel
@@ -235,7 +236,7 @@ def _system_for(scene, surface, args_of, period_of, fixed, newton_tol, scale, ma
     return _GrazingSystem(
         pmap=pmap, phi=scene.surfaces[surface].phi, args_of=args_of, period_of=period_of,
         fixed_period=fixed, root_finder=newton_for(newton_tol, scale),
-        max_steps=int(max_newton_steps),
+        max_newton_steps=int(max_newton_steps),
     )
 
 
@@ -368,6 +369,7 @@ def continue_grazing(
 # --------------------------------------------------------------------------------------
 
 
+@renamed_keyword("max_steps", "max_newton_steps", NEWTON_STEPS)
 def locate_grazing(
     scene: Scene,
     point: GrazingPoint | Orbit,
@@ -382,7 +384,7 @@ def locate_grazing(
     atol: float | None = None,
     solver: diffrax.AbstractSolver | None = None,
     newton_tol: float = 1e-10,
-    max_steps: int = 30,
+    max_newton_steps: int = 30,
     adjoint=None,
 ) -> BifurcationPoint:
     r"""Solve a grazing orbit by its defining system at ν: the μ at which the orbit
@@ -404,7 +406,7 @@ def locate_grazing(
       `point.mu`; required for an `Orbit`); `nu_guess`: the ν at which an `Orbit` guess
       was computed (default `nu`; its contact is found at (`mu`, `nu_guess`), so pass it
       when `nu` is traced, e.g. under `jax.jacfwd`).
-    - `rtol`, `atol`, `solver`: for [`grazejax.simulate`][]; `newton_tol`, `max_steps`:
+    - `rtol`, `atol`, `solver`: for [`grazejax.simulate`][]; `newton_tol`, `max_newton_steps`:
       Newton's relative tolerance and iterations; `adjoint`: `simulate`'s for the runs.
 
     **Returns:** a [`grazejax.BifurcationPoint`][] of kind `"grazing"`: `mu`, `nu`, the
@@ -423,14 +425,14 @@ def locate_grazing(
         raise ValueError("locate_grazing: with a traced nu (jit, jacfwd, grad), pass nu_guess, "
                          "the concrete ν of the guess orbit")
     orbit = point.orbit if isinstance(point, GrazingPoint) else point
-    kw, _, scale = continuation_settings(orbit, rtol, atol, solver, newton_tol, max_steps)
+    kw, _, scale = continuation_settings(orbit, rtol, atol, solver, newton_tol, max_newton_steps)
     # (host work on concrete values, also when called inside `jit`: the guess's contact)
     with jax.ensure_compile_time_eval():
         guess_args = args_of(float(mu), nu_guess) if isinstance(point, Orbit) else None
         surface, t_c, x_c, orbit = _contact_of(scene, point, guess_args, surface, kw)
     fixed = bool(orbit.fixed_period)
     system = _system_for(scene, surface, args_of, period_of, fixed, newton_tol, scale,
-                         max_steps, dict(kw, adjoint=adjoint))
+                         max_newton_steps, dict(kw, adjoint=adjoint))
     head = t_c if fixed else float(orbit.period)
     y0 = jnp.asarray(np.concatenate([[head], x_c, [float(mu)]]))
     params = (jnp.asarray(nu, float), jnp.asarray(t_c), jnp.asarray(float(orbit.period)))
@@ -448,7 +450,7 @@ def _solve_grazing(system: _GrazingSystem, y0, params) -> BifurcationPoint:
         return _residual(system, jnp.concatenate([y, nu[None]]), t_fixed, T_fixed)
 
     y, converged, finite, num_steps = newton(residual, system.root_finder, y0, params,
-                                             system.max_steps)
+                                             system.max_newton_steps)
     t0, T, x, mu, nu = _unpack(system, jnp.concatenate([y, nu[None]]), t_fixed, T_fixed)
 
     def rate(monodromy, jac_T):  # dΦ/dt at the contact

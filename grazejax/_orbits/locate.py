@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import diffrax
 
+from .._deprecated import NEWTON_STEPS, renamed_keyword
 from .._scene import Scene
 from .bifurcation import BifurcationPoint, locate_special
 from .branch import GrazingPoint
@@ -17,6 +18,7 @@ def is_grazing(point, kind) -> bool:
         isinstance(point, GrazingPoint) or getattr(point, "kind", None) == "grazing"))
 
 
+@renamed_keyword("max_steps", "max_newton_steps", NEWTON_STEPS)
 def locate_bifurcation(
     scene: Scene,
     point,
@@ -31,7 +33,7 @@ def locate_bifurcation(
     atol: float | None = None,
     solver: diffrax.AbstractSolver | None = None,
     newton_tol: float = 1e-9,
-    max_steps: int = 30,
+    max_newton_steps: int = 30,
     max_impacts: int = 64,
     max_solver_steps: int = 50_000,
     adjoint=None,
@@ -55,7 +57,7 @@ def locate_bifurcation(
       largest |f_j(x0)|).
     - `rtol`, `atol`, `solver`, `max_impacts`, `max_solver_steps`: passed to
       [`grazejax.simulate`][] (`atol=None`: `1e-2 · rtol` times the orbit's size).
-    - `newton_tol`, `max_steps`: Newton's relative tolerance and iterations.
+    - `newton_tol`, `max_newton_steps`: Newton's relative tolerance and iterations.
     - `adjoint`: `simulate`'s for Newton's runs: the default (`diffrax.ForwardMode()`)
       lets `jax.jacfwd` differentiate the point, `diffrax.DirectAdjoint()` `jax.grad` too.
 
@@ -67,15 +69,15 @@ def locate_bifurcation(
 
     A grazing point is solved by [`grazejax.locate_grazing`][] (its defining system: the
     orbit periodic, Φ = 0 and dΦ/dt = 0 at the contact), with `period_of`, `rtol`, `atol`,
-    `solver`, `newton_tol`, `max_steps` and `adjoint` passed on; whether its orbit is
+    `solver`, `newton_tol`, `max_newton_steps` and `adjoint` passed on; whether its orbit is
     forced comes from the point's orbit (`fixed_period`, `fix`, `max_impacts` and
     `max_solver_steps` are not used). Its result has kind `"grazing"`.
     """
     if is_grazing(point, kind):
         return locate_grazing(scene, point, args_of, nu, period_of=period_of, rtol=rtol,
                               atol=atol, solver=solver, newton_tol=newton_tol,
-                              max_steps=max_steps, adjoint=adjoint)
+                              max_newton_steps=max_newton_steps, adjoint=adjoint)
     return locate_special(scene, point, args_of, nu, kind=kind, fixed_period=fixed_period,
                           period_of=period_of, fix=fix, rtol=rtol, atol=atol, solver=solver,
-                          newton_tol=newton_tol, max_steps=max_steps, max_impacts=max_impacts,
+                          newton_tol=newton_tol, max_newton_steps=max_newton_steps, max_impacts=max_impacts,
                           max_solver_steps=max_solver_steps, adjoint=adjoint)

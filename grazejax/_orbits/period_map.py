@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import warnings
 from typing import Any
 
 import equinox as eqx
@@ -19,6 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._compiler import single_run_jit
+from .._deprecated import NEWTON_STEPS
 from .._flow import short_free_flow
 from .._geometry import gap_rates
 from .._scene import Scene
@@ -35,7 +37,7 @@ class SolverSettings:
       by `state_scale` when it was left to default).
     - `newton_rtol`, `newton_atol`: the root finder's tolerances (NaN for a user's
       `root_finder` without them).
-    - `max_steps`: Newton iterations allowed; `max_solver_steps`, `max_impacts`: for
+    - `max_newton_steps`: Newton iterations allowed; `max_solver_steps`, `max_impacts`: for
       `simulate`.
     - `state_scale`: the orbit's size used to scale absolute tolerances (max |x|).
     """
@@ -45,10 +47,17 @@ class SolverSettings:
     atol: float
     newton_rtol: float
     newton_atol: float
-    max_steps: int
+    max_newton_steps: int
     max_solver_steps: int
     max_impacts: int
     state_scale: float
+
+    @property
+    def max_steps(self) -> int:
+        """Deprecated name of `max_newton_steps`."""
+        warnings.warn("SolverSettings.max_steps is renamed max_newton_steps (" + NEWTON_STEPS
+                      + ")", DeprecationWarning, stacklevel=2)
+        return self.max_newton_steps
 
 
 # Default absolute tolerances, relative to rtol × the orbit's size: atol = 1e-2 · rtol · size

@@ -50,6 +50,7 @@ import optimistix as optx
 from jaxtyping import Array, Bool, Complex, Float, Int
 
 from .._adjoint import loop_kinds
+from .._deprecated import NEWTON_STEPS, renamed_keyword
 from .._geometry import FLOOR_ULPS, on_surface
 from .._scene import Scene
 from .._solution import ImpactLog
@@ -88,10 +89,10 @@ class OrbitStatus(StatusCode):
     """Newton converged to a periodic orbit with a regular (A6) matrix."""
     NO_CONVERGENCE = (
         1,
-        "Newton did not converge within max_steps: improve the guess (x0, period) or loosen "
+        "Newton did not converge within max_newton_steps: improve the guess (x0, period) or loosen "
         "newton_tol (it cannot beat the simulation's accuracy)",
     )
-    """The root finder used `max_steps` iterations without meeting `newton_tol`."""
+    """The root finder used `max_newton_steps` iterations without meeting `newton_tol`."""
     DIVERGED = (
         2,
         "Newton diverged (non-finite iterates): the guess is too far from a periodic orbit, or "
@@ -339,7 +340,7 @@ def _free_columns(n, j):
 
 
 @orbit_kernel
-def _newton(pmap: PeriodMap, fixed_period: bool, root_finder, max_steps: int, y0, t0,
+def _newton(pmap: PeriodMap, fixed_period: bool, root_finder, max_newton_steps: int, y0, t0,
             T_fixed, args, j, c):
     """Newton (`optx.root_find`) on the Poincaré criterion; differentiable in `args`."""
     n = y0.shape[0] - (0 if fixed_period else 1)
@@ -360,7 +361,7 @@ def _newton(pmap: PeriodMap, fixed_period: bool, root_finder, max_steps: int, y0
             return jnp.where(ok, r, jnp.nan)
 
     solution = optx.root_find(jacobian_in_one_pass(residual), root_finder, y0, args,
-                              max_steps=max_steps, throw=False)
+                              max_steps=max_newton_steps, throw=False)
     return solution.value, solution.result == optx.RESULTS.successful, solution.stats["num_steps"]
 
 
@@ -598,6 +599,7 @@ def _detect_start(pmap: PeriodMap, x0, t0, period, args) -> tuple[bool, int]:
     return False, int(np.sum(times <= t0 + period))
 
 
+@renamed_keyword("max_steps", "max_newton_steps", NEWTON_STEPS)
 def find_periodic_orbit(
     scene: Scene,
     x0,
@@ -613,7 +615,7 @@ def find_periodic_orbit(
     atol: float | None = None,
     solver: diffrax.AbstractSolver | None = None,
     root_finder: optx.AbstractRootFinder | None = None,
-    max_steps: int = 40,
+    max_newton_steps: int = 40,
     newton_tol: float = 1e-8,
     max_impacts: int = 64,
     max_solver_steps: int = 50_000,
@@ -654,7 +656,7 @@ def find_periodic_orbit(
       `LOOSE_ATOL`: the orbit is not accurate to `rtol`.
     - `root_finder`: an `optimistix` root finder (default `optx.Newton(newton_tol,
       newton_tol · s)`: the residual and the step are judged relative to the orbit's size).
-    - `max_steps`: Newton iterations.
+    - `max_newton_steps`: Newton iterations.
     - `newton_tol`: relative tolerance on the residual and the Newton step.
     - `max_impacts`: size of the impact log (impacts per period must not exceed it).
     - `adjoint`: [`grazejax.simulate`][]'s, for the runs that Newton's method solves.
@@ -679,7 +681,7 @@ def find_periodic_orbit(
     ```
     """
     x_guess = jnp.asarray(x0, dtype=float)
-    _check_arguments(scene, x_guess, period, fix, max_steps, num_impacts, adjoint)
+    _check_arguments(scene, x_guess, period, fix, max_newton_steps, num_impacts, adjoint)
     n = x_guess.shape[0]
     # Absolute tolerances scale with the orbit (a guess that is traced counts as size 1).
     scale = orbit_scale(x_guess) if is_concrete(x_guess) else 1.0
@@ -718,7 +720,7 @@ def find_periodic_orbit(
     # Only Newton's runs carry the adjoint: the diagnostics are evaluated without
     # derivatives, on the (faster) forward-mode loop.
     value, converged, num_steps = _newton(
-        dataclasses.replace(pmap, adjoint=adjoint), fixed_period, root_finder, int(max_steps),
+        dataclasses.replace(pmap, adjoint=adjoint), fixed_period, root_finder, int(max_newton_steps),
         y0, t0_live, T_fixed, args, j, c,
     )
     x0, T, finite_y = _solution_point(fixed_period, value, y0, T_fixed, j, c)
@@ -730,7 +732,7 @@ def find_periodic_orbit(
                                       x0, T, t0_live, args, j)
     t0 = t0_live
     settings = _settings_used(solver, rtol, atol_used, root_finder if user_root_finder else None,
-                              newton_tol, scale, max_steps, max_solver_steps, max_impacts)
+                              newton_tol, scale, max_newton_steps, max_solver_steps, max_impacts)
     orbit = Orbit(x0=x0, t0=t0, period=T, num_steps=num_steps,
                   start_at_impact=bool(start_at_impact), fixed_period=fixed_period,
                   settings=settings, **out)
@@ -746,13 +748,13 @@ def find_periodic_orbit(
                 scene, orbit.x0, orbit.period, args, t0=t0, fix=int(orbit.fix) if int(orbit.fix) >= 0 else None,
                 fixed_period=fixed_period, num_impacts=int(orbit.num_impacts),
                 start_at_impact=bool(start_at_impact), rtol=rtol, atol=ATOL_PER_RTOL * float(rtol) * size,
-                solver=solver, max_steps=max_steps, newton_tol=newton_tol,
+                solver=solver, max_newton_steps=max_newton_steps, newton_tol=newton_tol,
                 max_impacts=max_impacts, max_solver_steps=max_solver_steps, adjoint=adjoint,
             )
     return orbit
 
 
-def _check_arguments(scene, x_guess, period, fix, max_steps, num_impacts, adjoint):
+def _check_arguments(scene, x_guess, period, fix, max_newton_steps, num_impacts, adjoint):
     """`find_periodic_orbit`'s argument checks (those that need concrete values only where
     the values are concrete)."""
     if not isinstance(scene, Scene):
@@ -762,8 +764,8 @@ def _check_arguments(scene, x_guess, period, fix, max_steps, num_impacts, adjoin
     n = x_guess.shape[0]
     if fix is not None and not (isinstance(fix, (int, np.integer)) and 0 <= fix < n):
         raise ValueError(f"fix must be a coordinate index in [0, {n}), got {fix!r}")
-    if not isinstance(max_steps, (int, np.integer)) or max_steps < 1:
-        raise ValueError(f"max_steps must be a positive integer, got {max_steps!r}")
+    if not isinstance(max_newton_steps, (int, np.integer)) or max_newton_steps < 1:
+        raise ValueError(f"max_newton_steps must be a positive integer, got {max_newton_steps!r}")
     if num_impacts is not None and (not isinstance(num_impacts, (int, np.integer)) or num_impacts < 0):
         raise ValueError(f"num_impacts must be a non-negative integer, got {num_impacts!r}")
     if is_concrete(period) and not (np.isfinite(float(period)) and float(period) > 0):
@@ -802,7 +804,7 @@ def _impact_start(pmap, x_guess, t0, period, args, start_at_impact, num_impacts)
     return start_at_impact, num_impacts
 
 
-def _settings_used(solver, rtol, atol, root_finder, newton_tol, scale, max_steps,
+def _settings_used(solver, rtol, atol, root_finder, newton_tol, scale, max_newton_steps,
                    max_solver_steps, max_impacts) -> SolverSettings:
     """The [`grazejax.SolverSettings`][] of a solve: a user's root finder reports its own
     tolerances (NaN where it has none), the default ones are scaled to the orbit."""
@@ -814,6 +816,6 @@ def _settings_used(solver, rtol, atol, root_finder, newton_tol, scale, max_steps
     return SolverSettings(
         solver=solver_name(solver), rtol=float(rtol), atol=atol,
         newton_rtol=newton_rtol, newton_atol=newton_atol,
-        max_steps=int(max_steps),
+        max_newton_steps=int(max_newton_steps),
         max_solver_steps=int(max_solver_steps), max_impacts=int(max_impacts), state_scale=scale,
     )
