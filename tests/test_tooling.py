@@ -46,3 +46,7 @@ def test_docs_build_in_strict_mode(tmp_path):
     ]
     missing = [name for name in public if f'id="grazejax.{name}"' not in api]
     assert not missing, f"public names without an API entry: {missing}"
+    # The landing page is the README, its links pointing at the site's pages.
+    home = (tmp_path / "site" / "index.html").read_text(encoding="utf-8")
+    assert "Differentiable simulation of impact systems with grazing points" in home
+    assert 'href="tour/"' in home and 'src="img/ex1dof-bifurcation.png"' in home
