@@ -117,18 +117,23 @@ def run_pool(
     # ---- phase 1: the pool, refilled from the queue ----
 
     def steps_cond(state):
-        carry, slot_lane, queue_at = state
-        live = running(carry)
-        finished = jnp.sum(((slot_lane >= 0) & ~live).astype(jnp.int32))
-        return jnp.any(live) & (finished < refill_at) & ~draining(live, slot_lane, queue_at)
+        # One reduction per step: a live slot is occupied (empty and finished slots are
+        # frozen), and neither which slots are occupied nor the queue changes while the
+        # pool steps.
+        carry, occupied, queue_empty = state
+        num_live = jnp.sum(running(carry).astype(jnp.int32))
+        stop = (num_live == 0) | (occupied - num_live >= refill_at)
+        if tail != width:
+            stop = stop | (queue_empty & (num_live <= tail))
+        return ~stop
 
     def steps_body(state):
-        carry, slot_lane, queue_at = state
-        return step(carry), slot_lane, queue_at
+        carry, occupied, queue_empty = state
+        return step(carry), occupied, queue_empty
 
     def free_steps_body(state):
-        carry, slot_lane, queue_at = state
-        return free_step(carry), slot_lane, queue_at
+        carry, occupied, queue_empty = state
+        return free_step(carry), occupied, queue_empty
 
     def refill_cond(state):
         carry, slot_lane, queue_at, _ = state
@@ -137,9 +142,10 @@ def run_pool(
 
     def refill_body(state):
         carry, slot_lane, queue_at, out = state
-        carry, slot_lane, queue_at = _in_phases(
-            steps_cond, steps_body, free_steps_body, program, (carry, slot_lane, queue_at),
-            carry_of=lambda state: state[0],
+        occupied = jnp.sum((slot_lane >= 0).astype(jnp.int32))
+        carry, _, _ = _in_phases(
+            steps_cond, steps_body, free_steps_body, program,
+            (carry, occupied, queue_at >= count), carry_of=lambda state: state[0],
         )
         finished = (slot_lane >= 0) & ~running(carry)
         out = write(out, carry, slot_lane, finished)

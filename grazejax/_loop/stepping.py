@@ -54,7 +54,6 @@ class IntegralController(diffrax.PIDController):
             return super().adapt_step_size(
                 t0, t1, y0, y1_candidate, args, y_error, error_order, controller_state
             )
-        inv_error, prev_inv_error, at_dtmin = controller_state
         order = error_order if self.error_order is None else self.error_order
         if order is None:  # (the loop always knows its solver's order)
             raise ValueError("pass PIDController(..., error_order=...): the solver has none")
@@ -73,11 +72,11 @@ class IntegralController(diffrax.PIDController):
         factor = jax.lax.stop_gradient(factor)
         dt = (t1 - t0) * factor.astype(jnp.result_type(t1 - t0))
         next_t0 = jnp.where(keep, t1, t0)
-        # (A failed step, error inf or 0, does not steer later steps: as Diffrax.)
-        inv = jnp.where((inv == 0) | jnp.isinf(inv), 1, inv)
-        state = (jnp.where(keep, inv, inv_error), jnp.where(keep, inv_error, prev_inv_error),
-                 at_dtmin)
-        return keep, next_t0, next_t0 + dt, False, state, diffrax.RESULTS.successful
+        # An integral controller reads no history: its state passes through unchanged.
+        # (Diffrax's PIDController records the last two errors, which nothing here reads;
+        # XLA drops such dead carries from `simulate`'s loop but not from the nested loops
+        # of `sweep`'s pool, where every lane carried and selected them at every step.)
+        return keep, next_t0, next_t0 + dt, False, controller_state, diffrax.RESULTS.successful
 
 
 # The largest state whose RMS error norm is written out term by term (`error_norm`).

@@ -41,10 +41,11 @@ def test_same_decisions_as_diffrax(case):
         assert bool(ours[0]) == bool(theirs[0])
         assert float(ours[1]) == float(theirs[1])
         np.testing.assert_allclose(float(ours[2]), float(theirs[2]), rtol=8 * EPS)
-        # The error norm's sum of squares is written out term by term (`error_norm`),
-        # Diffrax's is a dot: the inverse errors agree to an ulp or so.
-        for a, b in zip(jax.tree.leaves(ours[4]), jax.tree.leaves(theirs[4]), strict=True):
-            np.testing.assert_allclose(a, b, rtol=4 * EPS)
+        # An integral controller's decisions read no history: Diffrax records the last two
+        # inverse errors for its P and D terms; ours passes its state through unchanged
+        # (a carry that nothing reads, which the pool's nested loops could not drop).
+        for a, b in zip(jax.tree.leaves(ours[4]), jax.tree.leaves(state), strict=True):
+            assert np.array_equal(a, b)
 
 
 def test_other_settings_run_diffrax_own_rule():
