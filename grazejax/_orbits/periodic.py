@@ -585,8 +585,17 @@ def _detect_start(pmap: PeriodMap, x0, t0, period, args) -> tuple[bool, int]:
     """
     scene = pmap.scene
     on = _on_surfaces(scene, t0, x0, args)
-    horizon = t0 + 1.5 * abs(period)
-    sol = run_period_map(pmap, jnp.asarray(x0, float), jnp.asarray(t0, float), jnp.asarray(horizon, float), args)
+    x0_, t0_ = jnp.asarray(x0, float), jnp.asarray(t0, float)
+    if on:
+        # (the period may end at an impact: the orbit's period map is then another one)
+        sol = run_period_map(pmap, x0_, t0_, jnp.asarray(t0 + 1.5 * abs(period), float), args)
+    else:
+        # The period map is this time-T map: its linearization's program, which the phase
+        # condition compiles next, gives the run (its tangents cost microseconds here),
+        # and a primal program of its own would be one more of the loop's size to
+        # compile. Its inputs as the phase condition passes them: the same program.
+        sol = linearize(pmap, x0_, t0_, jnp.asarray(1.5 * abs(period), float),
+                        lax.stop_gradient(args))[4]
     k = int(sol.num_impacts)
     times = np.asarray(sol.impact_times[:k])
     surfaces = np.asarray(sol.impact_surface[:k])
