@@ -108,24 +108,25 @@ def run_pool(
         index = jnp.where(rows, slot_lane, num_lanes)
         return jax.tree.map(lambda o, v: o.at[index].set(v, mode="drop"), out, finish(carry))
 
-    def draining(live, slot_lane, queue_at):
+    def num_running(carry):
+        # (a running slot is occupied: empty and finished slots are frozen)
+        return jnp.sum(running(carry).astype(jnp.int32))
+
+    def draining(num_live, queue_empty):
         # Hand over to the narrow tail pool: the queue is empty and few slots still run.
         if tail == width:
             return jnp.array(False)
-        return (queue_at >= count) & (jnp.sum((live & (slot_lane >= 0)).astype(jnp.int32)) <= tail)
+        return queue_empty & (num_live <= tail)
 
     # ---- phase 1: the pool, refilled from the queue ----
 
     def steps_cond(state):
-        # One reduction per step: a live slot is occupied (empty and finished slots are
-        # frozen), and neither which slots are occupied nor the queue changes while the
-        # pool steps.
+        # One reduction per step: neither which slots are occupied nor the queue changes
+        # while the pool steps.
         carry, occupied, queue_empty = state
-        num_live = jnp.sum(running(carry).astype(jnp.int32))
+        num_live = num_running(carry)
         stop = (num_live == 0) | (occupied - num_live >= refill_at)
-        if tail != width:
-            stop = stop | (queue_empty & (num_live <= tail))
-        return ~stop
+        return ~(stop | draining(num_live, queue_empty))
 
     def steps_body(state):
         carry, occupied, queue_empty = state
@@ -138,7 +139,7 @@ def run_pool(
     def refill_cond(state):
         carry, slot_lane, queue_at, _ = state
         more = jnp.any(slot_lane >= 0) | (queue_at < count)
-        return more & ~draining(running(carry), slot_lane, queue_at)
+        return more & ~draining(num_running(carry), queue_at >= count)
 
     def refill_body(state):
         carry, slot_lane, queue_at, out = state
