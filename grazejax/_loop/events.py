@@ -47,16 +47,17 @@ LIFT_FRACTION = 2.0**-20
 # a gap oscillating with a period that divides the step (a wall moving at ω with
 # h ≈ 2πk/ω) cannot agree with the model at every check point.
 CHECK_POINTS = (2.0**0.5 - 1.0, 0.5 * (5.0**0.5 - 1.0))
+# The same check points as fractions of the whole step.
+CHECK_FRACTIONS = (0.5 * CHECK_POINTS[0], 0.5 + 0.5 * CHECK_POINTS[1])
 # A half whose samples are all on one side of Φ = 0 and which no test flags must clear
 # Φ = 0 by this many times its model's error.
 CLEARANCE = 4.0
 # Every half's model must predict its check point to this fraction of the half's spread of
 # values (or to the floor): the shape of the gap, the number of its extrema, is resolved.
 SHAPE = 0.125
-# A gap whose samples on a step (values at 0, ½, 1 and the check points) all lie this many
-# times their variation (the values' spread plus the largest slope times the step) on the
-# free side needs no model: the model's error is at most ~2 spreads + ½ step·slope, and the
-# clearance rule asks CLEARANCE = 4 of them, so this is stricter (`is_far`).
+# A gap that stays this many times its variation (`is_far`) or its step's model error
+# (`is_clear`) clear of Φ = 0 on the free side needs no verdict: the verdict's clearance
+# rule asks CLEARANCE = 4 of the halves' model errors, which these bound.
 FAR = 8.0
 
 
@@ -151,11 +152,39 @@ def split_step_ends(ends: StepEnds, s_mid, g_mid, slope_mid, sa, restart):
 
 def is_far(values, slopes):
     """Whether a gap sampled at `values` with slopes in θ (h·ġ) `slopes` stays clear of
-    Φ = 0 over the step without a model (`FAR`): then it is resolved, whatever its shape."""
+    Φ = 0 over the step without a model (`FAR`): then it is resolved, whatever its shape.
+    The values' spread plus the largest step·slope bounds the halves' model errors (at
+    most ~2 spreads + ½ step·slope)."""
     lowest = functools.reduce(jnp.minimum, values)
     spread = functools.reduce(jnp.maximum, values) - lowest
     steepest = functools.reduce(jnp.maximum, map(jnp.abs, slopes))
     return lowest > FAR * (spread + steepest)
+
+
+def is_clear(g, d, checks):
+    """Whether a gap stays `FAR` times its step's model error clear of Φ = 0: then it is
+    resolved, whatever its shape.
+
+    `g` = (g(0), g(½), g(1)), `d` their slopes in θ (h·ġ), `checks` the value and slope in
+    θ at `CHECK_FRACTIONS` (as `gap_resolution` reads them). The model is the cubic
+    Hermite interpolant of the step's ends, whose values lie within
+    b = max|d_end − Δ|/4 of the chord (Δ = g(1) − g(0)): above min(g(0), g(1)) − b. Its
+    error is read as the verdict reads each half's: at the midpoint and the check points,
+    value and slope/8 (a gap oscillating between them cannot match both at each point).
+    `is_far` asks the same of the samples' spread and slopes, which a long step across a
+    flight makes large: most steps between impacts pass here and not there.
+    """
+    g0, g_mid, g1 = g
+    d0, d_mid, d1 = d
+    delta = g1 - g0
+    bound = 0.25 * jnp.maximum(jnp.abs(d0 - delta), jnp.abs(d1 - delta))
+    error = jnp.zeros_like(g0)
+    samples = ((0.5, (g_mid, d_mid)), *zip(CHECK_FRACTIONS, checks, strict=True))
+    for u, (value, slope) in samples:
+        model, model_slope = _hermite(g0, g1, d0, d1, u)
+        misfit = jnp.maximum(jnp.abs(value - model), jnp.abs(slope - model_slope) / 8)
+        error = jnp.maximum(error, misfit)
+    return jnp.minimum(g0, g1) - bound > FAR * error
 
 
 def gap_resolution(g, d, checks, flagged, floor, restart, known, g_start):

@@ -21,20 +21,19 @@ from .._geometry import FLOOR_ULPS
 from .._roots import safe_divide
 from .context import LoopContext
 from .events import (
-    CHECK_POINTS,
+    CHECK_FRACTIONS,
     LIFT_FRACTION,
     gap_resolution,
     is_candidate,
+    is_clear,
     is_far,
     split_step_ends,
     step_ends,
 )
 from .state import LoopState
 
-# The check points of the halves' models, as fractions of the step.
-_CHECK_FRACTIONS = (0.5 * CHECK_POINTS[0], 0.5 + 0.5 * CHECK_POINTS[1])
 # Every fraction of a step at which the tests read the gap.
-_FRACTIONS = (0.0, LIFT_FRACTION, _CHECK_FRACTIONS[0], 0.5, _CHECK_FRACTIONS[1], 1.0)
+_FRACTIONS = (0.0, LIFT_FRACTION, CHECK_FRACTIONS[0], 0.5, CHECK_FRACTIONS[1], 1.0)
 
 
 class GapSamples(NamedTuple):
@@ -55,10 +54,11 @@ def sample_gaps(ctx: LoopContext, c: LoopState, sa, sb, y1, interp, stages, *,
     """Sample each piece's gap on the step [sa, sb] from `c.y` to `y1`.
 
     The verdict `resolved` (`gap_resolution`) is computed under a `cond`, only where a
-    gap is not far from Φ = 0 (`is_far`) in some lane `checking` it: its arithmetic is
-    light, but XLA's CPU fusion copies it into every consumer of the step's decision (each
-    field of the next state), and under `vmap` each copy runs over the whole batch; a
-    conditional's results are computed once, and in a single run most steps skip it.
+    gap is not far from Φ = 0 (`is_far`, `is_clear`) in some lane `checking` it: its
+    arithmetic is light, but XLA's CPU fusion copies it into every consumer of the step's
+    decision (each field of the next state), and under `vmap` each copy runs over the
+    whole batch; a conditional's results are computed once, and in a single run most
+    steps skip it.
     `batched` (the loop runs under `vmap`): the dense output is evaluated at every
     fraction in one contraction (in a single run that is a kernel of its own per step).
     """
@@ -110,9 +110,10 @@ class _StepView(NamedTuple):
 
 def _sample_one(ctx: LoopContext, step: _StepView, i: int, piece, sign):
     """One piece's side: `(halves, flags, far, verdict)`, the halves' `StepEnds`, whether an
-    end test flags each half, whether the gap is far from Φ = 0 on the step (`is_far`: no
-    verdict needed), and the resolution verdict as a function (`gap_resolution`'s
-    `(resolved, shrink)`), so the caller may compute it under a `cond`."""
+    end test flags each half, whether the gap is far from Φ = 0 on the step (`is_far`,
+    `is_clear`: no verdict needed), and the resolution verdict as a function
+    (`gap_resolution`'s `(resolved, shrink)`), so the caller may compute it under a
+    `cond`."""
     c, sa, sb, h = step.c, step.sa, step.sb, step.sb - step.sa
 
     def gap(s, y):
@@ -137,9 +138,11 @@ def _sample_one(ctx: LoopContext, step: _StepView, i: int, piece, sign):
 
     # (outside `verdict`: a conditional that read the dense output would copy every
     # lane's stages into its branch at every step)
-    checks = tuple((value, h * slope) for value, slope in map(rate, _CHECK_FRACTIONS))
+    checks = tuple((value, h * slope) for value, slope in map(rate, CHECK_FRACTIONS))
+    step_slopes = tuple(h * r for r in slopes)
     far = is_far((g_a, g_mid, g_b, *(v for v, _ in checks)),
-                 (*(h * r for r in slopes), *(d for _, d in checks))) & defined
+                 (*step_slopes, *(d for _, d in checks)))
+    far = (far | is_clear((g_a, g_mid, g_b), step_slopes, checks)) & defined
 
     def verdict():
         floor = step_floor(ctx, piece, c.t_hi, c.t_lo, c.args, c.flight_scale, sa, sb,
@@ -149,7 +152,7 @@ def _sample_one(ctx: LoopContext, step: _StepView, i: int, piece, sign):
         tol = ctx.tol_a + ctx.tol_r * jnp.maximum(c.flight_scale, jnp.abs(step.y1))
         known = piece.floor(ctx.abs_time(sb, c.t_hi, c.t_lo), step.y1, c.args,
                             tol / (FLOOR_ULPS * ctx.eps))
-        ok, factor = gap_resolution((g_a, g_mid, g_b), tuple(h * r for r in slopes), checks,
+        ok, factor = gap_resolution((g_a, g_mid, g_b), step_slopes, checks,
                                     tuple(flags), floor, c.restart[i], jnp.maximum(known, floor),
                                     whole.g_start)
         # (the branches of the caller's `cond` must agree in type: float32 runs too)

@@ -107,6 +107,64 @@ def test_the_far_screen_is_stricter_than_the_clearance_rule():
     assert not bool(is_far((jnp.nan, 5.0, 5.0), (0.0, 0.0, 0.0)))
 
 
+def _samples(gap, slope):
+    """A gap's samples as `is_clear` reads them on [0, 1]: values and slopes in θ."""
+    from grazejax._loop.events import CHECK_FRACTIONS
+
+    g = tuple(float(gap(u)) for u in (0.0, 0.5, 1.0))
+    d = tuple(float(slope(u)) for u in (0.0, 0.5, 1.0))
+    checks = tuple((float(gap(u)), float(slope(u))) for u in CHECK_FRACTIONS)
+    return g, d, checks
+
+
+def test_the_model_screen_bounds_the_cubic_between_its_ends():
+    """`is_clear` skips the verdict where the step's cubic model, with its error read at
+    the midpoint and the check points, stays clear of Φ = 0. A quadratic is its own
+    model: clear where its minimum is positive, whatever its ends say."""
+    from grazejax._loop.events import is_clear
+
+    def quadratic(depth):
+        return _samples(lambda u: (u - 0.5) ** 2 + depth, lambda u: 2 * (u - 0.5))
+
+    assert bool(is_clear(*quadratic(0.01)))
+    # Ends at 0.24 above a minimum of −0.01: the chord bound sees the dip.
+    assert not bool(is_clear(*quadratic(-0.01)))
+    # The missed impact of x = t, Φ = 0.99 + cos x on a step of length 6.
+    assert not bool(is_clear(*_samples(lambda u: 0.99 + np.cos(6 * u),
+                                       lambda u: -6 * np.sin(6 * u))))
+    # An oscillation with a node at every sample of the ends and the midpoint, values and
+    # slopes: only the check points see it.
+    assert not bool(is_clear(*_samples(lambda u: 1.0 + 2.0 * np.cos(4 * np.pi * u),
+                                       lambda u: -8.0 * np.pi * np.sin(4 * np.pi * u))))
+    g, d, checks = quadratic(0.01)
+    assert not bool(is_clear((jnp.nan, *g[1:]), d, checks))
+
+
+def test_the_model_screen_never_clears_a_gap_that_reaches_the_surface():
+    """Random smooth gaps on a step, a cubic plus an oscillation of random frequency:
+    wherever `is_clear` skips the verdict, the gap's minimum on a fine grid is positive."""
+    from grazejax._loop.events import is_clear
+
+    rng = np.random.default_rng(20261129)
+    grid = np.linspace(0.0, 1.0, 4001)
+    cleared = 0
+    for _ in range(3000):
+        c = rng.normal(size=4) * rng.choice([0.01, 0.1, 1.0], size=4)
+        amp, freq, phase = rng.choice([0.0, 1e-3, 1e-2, 0.1]), rng.uniform(0, 40), rng.uniform(0, 7)
+        c[0] = rng.uniform(-0.2, 1.0)
+
+        def gap(u, c=c, amp=amp, freq=freq, phase=phase):
+            return np.polyval(c[::-1], u) + amp * np.sin(freq * u + phase)
+
+        def slope(u, c=c, amp=amp, freq=freq, phase=phase):
+            return np.polyval(np.polyder(c[::-1]), u) + amp * freq * np.cos(freq * u + phase)
+
+        if bool(is_clear(*_samples(gap, slope))):
+            cleared += 1
+            assert gap(grid).min() > 0
+    assert cleared > 300  # the screen does clear most gaps that are far
+
+
 def test_a_hop_off_a_moving_wall_that_returns_inside_half_a_step():
     """The samples of a step found by the fuzz campaign (mech2, Vern9): a body leaves a fast
     moving wall (restart, ġ > 0), the wall catches it 0.019 later and it is inside the
