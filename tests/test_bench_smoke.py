@@ -266,3 +266,22 @@ def test_compile_benchmark_smoke(tmp_path):
     assert [r["case"] for r in runs] == ["diffeqsolve", "simulate"]
     ratio = f"{row['compile_s'] / base['compile_s']:.2f}×"
     assert f"| {ratio} |" in (tmp_path / "compile.md").read_text()
+
+
+# ---------------------------------------------------------------- bench_revisions -----
+
+
+def test_revisions_benchmark_smoke(tmp_path):
+    """benchmarks/bench_revisions.py --smoke: the working tree's cases timed in a child
+    process that imports this checkout's package; the JSON and the table are written."""
+    bench_revisions = _benchmark_module("bench_revisions")
+    results = bench_revisions.main(["--smoke", "--out", str(tmp_path)])
+    (run,) = results["."]
+    assert set(run) == {"one run, Dopri8 2e-12", "one run, Tsit5 1e-10", "sweep 8 in phase",
+                        "sweep 8 random phases"}
+    assert all(math.isfinite(us) and us > 0 for us in run.values())
+    saved = json.loads((tmp_path / "revisions.json").read_text())
+    assert saved["revisions"] == ["."] and saved["rounds"]["."] == [run]
+    table = (tmp_path / "revisions.md").read_text()
+    assert table.splitlines()[0] == "| case | `.` |"
+    assert f"| sweep 8 in phase | {run['sweep 8 in phase']:.1f} |" in table
