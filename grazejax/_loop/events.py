@@ -176,8 +176,7 @@ def is_clear(g, d, checks):
     """
     g0, g_mid, g1 = g
     d0, d_mid, d1 = d
-    delta = g1 - g0
-    bound = 0.25 * jnp.maximum(jnp.abs(d0 - delta), jnp.abs(d1 - delta))
+    bound = _chord_bound(g0, g1, d0, d1)
     error = jnp.zeros_like(g0)
     samples = ((0.5, (g_mid, d_mid)), *zip(CHECK_FRACTIONS, checks, strict=True))
     for u, (value, slope) in samples:
@@ -318,6 +317,13 @@ def _hermite(p0, p1, m0, m1, u: float):
     return value, slope
 
 
+def _chord_bound(p0, p1, m0, m1):
+    """How far the cubic Hermite interpolant on [0, 1] with values p0, p1 and slopes m0, m1
+    strays from its chord: max(|m0 − Δ|, |m1 − Δ|)/4, Δ = p1 − p0."""
+    delta = p1 - p0
+    return 0.25 * jnp.maximum(jnp.abs(m0 - delta), jnp.abs(m1 - delta))
+
+
 def _hidden_pair(p0, p1, m0, m1, margin, floor):
     """Whether the cubic Hermite interpolant on [0, 1] with values p0, p1 and slopes m0, m1
     may hold a local maximum and minimum inside (0, 1) that straddle Φ = 0 within
@@ -333,7 +339,7 @@ def _hidden_pair(p0, p1, m0, m1, margin, floor):
         (B * B > 4 * A * C) & (A * B < 0) & (jnp.abs(B) < 2 * jnp.abs(A))
         & (A * C > 0) & (A * (A + B + C) > 0)
     )
-    bound = 0.25 * jnp.maximum(jnp.abs(m0 - delta), jnp.abs(m1 - delta))
+    bound = _chord_bound(p0, p1, m0, m1)
     low = jnp.minimum(p0, p1) - bound
     high = jnp.maximum(p0, p1) + bound
     return pair & (2 * bound > floor) & (low <= margin) & (high >= -margin)
