@@ -203,26 +203,21 @@ def at_fractions(interp, thetas, sa, sb):
     evaluation on its own was a contraction kernel of its own at every step; a jvp through
     `evaluate` at the traced times also recomputed the weights for every lane).
     Mathematically the same values (P'(s) = dP/dθ / (sb − sa)); the rounding differs by
-    ulps. Interpolations from outside Diffrax and grazejax (`Vern9`'s) are evaluated at
-    the traced times (their `evaluate` might not rescale by their ends).
+    ulps. Interpolations from outside Diffrax and grazejax are evaluated at the traced
+    times (their `evaluate` might not rescale by their ends).
     """
     if not thetas:
         return []
     times = [fraction_time(theta, sa, sb) for theta in thetas]
-    if not type(interp).__module__.startswith(("diffrax.", "grazejax.")):
+    if not _rescales(interp):
         out = []
         for s in times:
             y, dy = jax.jvp(interp.evaluate, (s,), (jnp.ones_like(s),))
             out.append((s, y, dy))
         return out
-    dtype = jnp.result_type(interp.t0)
-    # (arrays, not Python floats: some dense outputs do ω-arithmetic with their ends)
-    unit = eqx.tree_at(
-        lambda i: (i.t0, i.t1), interp, (jnp.zeros((), dtype), jnp.ones((), dtype))
-    )
-    one = jnp.ones((), dtype)
+    unit, one = _on_unit_interval(interp)
     ys, dys = jax.vmap(lambda theta: jax.jvp(unit.evaluate, (theta,), (one,)))(
-        jnp.asarray(thetas, dtype)
+        jnp.asarray(thetas, one.dtype)
     )
     h = sb - sa
     out = []
@@ -234,12 +229,39 @@ def at_fractions(interp, thetas, sa, sb):
 
 
 def at_fraction(interp):
-    """`(s, P(s), P'(s))` at one constant fraction θ of the step [sa, sb] (`at_fractions`)."""
+    """`(s, P(s), P'(s))` at one constant fraction θ of the step [sa, sb]: the output on
+    [0, 1] at θ, as in `at_fractions`, without the batch of fractions (one fraction in a
+    batch of one made its weights a row, which XLA hoisted out of the step loop and then
+    copied into the column its contraction reads, one kernel per weight vector at every
+    step; unbatched they are read where they are). Same weights, same contraction: the
+    same bits."""
 
     def at(theta, sa, sb):
-        return at_fractions(interp, (theta,), sa, sb)[0]
+        if not _rescales(interp):
+            return at_fractions(interp, (theta,), sa, sb)[0]
+        unit, one = _on_unit_interval(interp)
+        y, dy = jax.jvp(unit.evaluate, (jnp.asarray(theta, one.dtype),), (one,))
+        h = sb - sa
+        return fraction_time(theta, sa, sb), y, jax.tree.map(
+            lambda d: safe_divide(d, h, h != 0), dy)
 
     return at
+
+
+def _rescales(interp) -> bool:
+    """Whether the dense output is one of Diffrax's or grazejax's, whose `evaluate` rescales
+    time by its ends (so that it may be evaluated on [0, 1])."""
+    return type(interp).__module__.startswith(("diffrax.", "grazejax."))
+
+
+def _on_unit_interval(interp):
+    """The same dense output with ends 0 and 1, and the scalar 1 of its dtype."""
+    dtype = jnp.result_type(interp.t0)
+    # (arrays, not Python floats: some dense outputs do ω-arithmetic with their ends)
+    unit = eqx.tree_at(
+        lambda i: (i.t0, i.t1), interp, (jnp.zeros((), dtype), jnp.ones((), dtype))
+    )
+    return unit, jnp.ones((), dtype)
 
 
 def fraction_time(theta, sa, sb):

@@ -13,7 +13,9 @@ import pytest
 
 import grazejax as gj
 from grazejax._loop.events import LIFT_FRACTION, step_ends
+from grazejax._loop.events import CHECK_FRACTIONS
 from grazejax._loop.gaps import at_fraction as _at_fraction
+from grazejax._loop.gaps import at_fractions as _at_fractions
 from grazejax._loop.gaps import fraction_time as _fraction_time
 from grazejax._loop.gaps import rates_at_ends
 from grazejax._loop.unrolled import UnrolledERK, unrollable
@@ -73,6 +75,26 @@ def test_constant_fraction_matches_the_traced_dense_output(name, theta):
     np.testing.assert_allclose(dy, dy_ref, rtol=0, atol=64 * EPS)
     if theta == 0.0:
         np.testing.assert_array_equal(y, jnp.array([0.7, -0.4]))  # P(sa) is y0 exactly
+
+
+@pytest.mark.parametrize("name", ["Tsit5", "Dopri5", "Dopri8", "Vern9"])
+def test_one_fraction_is_the_batch_of_one_bit_for_bit(name):
+    """`at_fraction` evaluates one fraction without `at_fractions`' batch of fractions (whose
+    batch of one cost a copy of each weight vector per step): the same weights and the same
+    contraction, so the same bits, in a program of its own as in one step."""
+    sa, sb = jnp.float64(3.25), jnp.float64(3.25 + 0.37)
+    for theta in (LIFT_FRACTION, *CHECK_FRACTIONS, 0.5):
+
+        @jax.jit
+        def one(sa, sb, theta=theta):
+            return _at_fraction(_interpolation(SOLVERS[name], sa, sb))(theta, sa, sb)
+
+        @jax.jit
+        def batch(sa, sb, theta=theta):
+            return _at_fractions(_interpolation(SOLVERS[name], sa, sb), (theta,), sa, sb)[0]
+
+        for a, b in zip(one(sa, sb), batch(sa, sb), strict=True):
+            np.testing.assert_array_equal(a, b)
 
 
 def test_an_empty_step_has_no_rate():
