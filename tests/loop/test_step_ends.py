@@ -12,8 +12,7 @@ import numpy as np
 import pytest
 
 import grazejax as gj
-from grazejax._loop.events import LIFT_FRACTION, step_ends
-from grazejax._loop.events import CHECK_FRACTIONS
+from grazejax._loop.events import CHECK_FRACTIONS, LIFT_FRACTION, step_ends
 from grazejax._loop.gaps import at_fraction as _at_fraction
 from grazejax._loop.gaps import at_fractions as _at_fractions
 from grazejax._loop.gaps import fraction_time as _fraction_time
