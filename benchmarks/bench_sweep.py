@@ -2,6 +2,7 @@
 slowest-lane problem (balance="none" vs "refill", against the ideal bound).
 
     python benchmarks/bench_sweep.py [--quick] [--lanes N] [--out DIR]
+    python benchmarks/bench_sweep.py --tax [--quick] [--out DIR]
 
 Writes DIR/sweep.json and DIR/sweep.md (default DIR: bench-output/). All timings come from
 one process on one machine, variants interleaved and repeated, min taken; ratios are what to
@@ -36,6 +37,14 @@ read (see benchmarks/README.md).
    arguments + outputs + temporaries, the device memory a chunk needs) per variant, and the
    process's peak RSS (`resource.getrusage(...).ru_maxrss`: a high-water mark of the whole
    process, including XLA's compiler, so it is not per variant).
+4. **The tax** (`--tax`, on its own: DIR/sweep_tax.json and .md): `gj.sweep` (the default
+   refilling pool, and `balance="none"`) against a hand-written
+   `jax.jit(jax.vmap(simulate))` of the same lanes compiled as `sweep` compiles it
+   (`bench_phases.runner`): ex1dof μ = 0.2, 10 impacts, Dopri8 rtol = atol = 2e-12 (the
+   setting that reaches 1e-10 against heyoka), lanes in phase and at random phases
+   (`bench_phases.starts`), 64 / 512 / 2048 lanes, `progress=False`, one core (the
+   process is pinned before JAX starts its thread pool), interleaved, min of the rounds.
+   Issue #43's target: `sweep` ≤ 1.05× the hand-written program.
 """
 
 import argparse
@@ -329,12 +338,80 @@ def slowest_lane(case, quick):
     }
 
 
+# --------------------------------------------------------------------------------------
+# 4. The tax: sweep against a hand-written jit(vmap(simulate))
+# --------------------------------------------------------------------------------------
+
+
+def sweep_tax(lane_counts, rounds):
+    """Per lane count and kind of start: µs per trajectory of `jit(vmap(simulate))`,
+    `sweep` and `sweep(balance="none")`, interleaved, and their ratios to the first."""
+    import bench_phases
+
+    scene, args = ex.ex1dof(), ex.ex1dof_args(0.2)
+    solver, tol = diffrax.Dopri8(), 2e-12
+    kw = dict(solver=solver, rtol=tol, atol=tol, max_impacts=bench_phases.IMPACTS, progress=False)
+    by_hand = bench_phases.runner(solver, tol)
+    rows = []
+    for lanes in lane_counts:
+        for kind, x0s in bench_phases.starts(lanes).items():
+            xs = jnp.asarray(x0s)
+            fns = {
+                "jit(vmap(simulate))": lambda xs=xs: jax.block_until_ready(by_hand(xs)),
+                "sweep": lambda x0s=x0s: gj.sweep(scene, x0s, 0.0, jnp.inf, args, **kw),
+                'sweep(balance="none")': lambda x0s=x0s: gj.sweep(
+                    scene, x0s, 0.0, jnp.inf, args, balance="none", **kw),
+            }
+            timing, first = time_interleaved(fns, rounds)
+            steps = np.asarray(first["sweep"].num_steps)
+            assert np.all(np.asarray(first["sweep"].status) == int(gj.Status.MAX_IMPACTS))
+            base = timing["jit(vmap(simulate))"]["min_s"]
+            rows.append({
+                "lanes": lanes, "starts": kind,
+                "steps": {"min": int(steps.min()), "max": int(steps.max()),
+                          "mean": float(steps.mean())},
+                "us_per_trajectory": {k: v["min_s"] / lanes * 1e6 for k, v in timing.items()},
+                "over_jit_vmap": {k: v["min_s"] / base for k, v in timing.items()},
+                "timing": timing,
+            })
+    return rows
+
+
+def tax_report(rows, rounds):
+    md = ["# `sweep` against a hand-written `jit(vmap(simulate))`", "",
+          "ex1dof μ = 0.2, 10 impacts, Dopri8 rtol = atol = 2e-12, one core, `progress=False`, "
+          f"min of {rounds} interleaved rounds; µs per trajectory (ratio to the hand-written "
+          "program).", "",
+          "| lanes | starts | steps per lane | `jit(vmap(simulate))` | `sweep` | "
+          "`sweep(balance=\"none\")` |", "|---:|---|---|---:|---:|---:|"]
+    for r in rows:
+        us, over = r["us_per_trajectory"], r["over_jit_vmap"]
+        cells = [f"{us[k]:.1f} ({over[k]:.2f}×)" for k in us]
+        md.append(f"| {r['lanes']} | {r['starts']} | {r['steps']['min']}–{r['steps']['max']} | "
+                  + " | ".join(cells) + " |")
+    return "\n".join(md)
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true")
     parser.add_argument("--lanes", type=int, default=None)
     parser.add_argument("--out", default="bench-output")
+    parser.add_argument("--tax", action="store_true",
+                        help="only section 4: sweep against a hand-written jit(vmap(simulate))")
     opts = parser.parse_args(argv)
+    if opts.tax:
+        rounds = 3 if opts.quick else 8
+        rows = sweep_tax((64, 512) if opts.quick else (64, 512, 2048), rounds)
+        os.makedirs(opts.out, exist_ok=True)
+        with open(os.path.join(opts.out, "sweep_tax.json"), "w") as f:
+            json.dump({"rounds": rounds, "cpu": sorted(os.sched_getaffinity(0)), "rows": rows},
+                      f, indent=2)
+        md = tax_report(rows, rounds)
+        with open(os.path.join(opts.out, "sweep_tax.md"), "w") as f:
+            f.write(md + "\n")
+        print(md)
+        return
     lanes = opts.lanes or (2000 if opts.quick else 20000)
     start = time.perf_counter()
     results = {
@@ -410,4 +487,7 @@ def report(results):
 
 
 if __name__ == "__main__":
+    if "--tax" in sys.argv:
+        # One core, before JAX starts its thread pool (as bench_throughput.py does).
+        os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
     main()
