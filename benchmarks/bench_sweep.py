@@ -488,6 +488,7 @@ def report(results):
 
 if __name__ == "__main__":
     if "--tax" in sys.argv:
-        # One core, before JAX starts its thread pool (as bench_throughput.py does).
-        os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
+        from bench_throughput import pin_to_one_core
+
+        pin_to_one_core()  # before JAX starts its thread pool
     main()
