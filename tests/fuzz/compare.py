@@ -102,17 +102,29 @@ def runner(family_name: str, solver: str, tol: float, saves: int = 0):
     return jax.jit(jax.vmap(one))
 
 
+# Lanes run in chunks of one size, the last padded with copies of its last lane: one
+# compiled program per family, solver and settings whatever the number of lanes, which the
+# default and slow jobs' campaigns (and the reruns of a few suspects) share through JAX's
+# persistent compilation cache.
+CHUNK = 64
+
+
 def run_gj(family_name, solver, batch, lanes=None, tol=BASE_TOL, saves=0):
     lanes = np.arange(len(batch)) if lanes is None else np.asarray(lanes)
-    args = {k: jnp.asarray(v[lanes]) for k, v in batch.args.items()}
-    out = runner(family_name, solver, tol, saves)(
-        jnp.asarray(batch.x0[lanes]),
-        args,
-        jnp.asarray(batch.t0[lanes]),
-        jnp.asarray(batch.t1[lanes]),
-    )
-    out = {k: np.asarray(v) for k, v in out.items()}
-    return [{k: v[j] for k, v in out.items()} for j in range(len(lanes))]
+    padded = np.concatenate([lanes, np.repeat(lanes[-1:], -len(lanes) % CHUNK)])
+    run = runner(family_name, solver, tol, saves)
+    rows = []
+    for start in range(0, len(padded), CHUNK):
+        part = padded[start : start + CHUNK]
+        out = run(
+            jnp.asarray(batch.x0[part]),
+            {k: jnp.asarray(v[part]) for k, v in batch.args.items()},
+            jnp.asarray(batch.t0[part]),
+            jnp.asarray(batch.t1[part]),
+        )
+        out = {k: np.asarray(v) for k, v in out.items()}
+        rows += [{k: v[j] for k, v in out.items()} for j in range(len(part))]
+    return rows[: len(lanes)]
 
 
 def run_ref(fam: Family, batch, i, **kw):
@@ -461,10 +473,12 @@ def plan(solvers_per_family: int | None = None):
     ]
 
 
-def campaign(pairs, lanes: int, seed: int, tol=BASE_TOL, progress=None):
-    """Run `lanes` random systems per (family, solver) pair; returns the records."""
+def campaign(pairs, lanes: int, seed: int, tol=BASE_TOL, progress=None, first: int = 0):
+    """Run `lanes` random systems per (family, solver) pair; returns the records. Pair j's
+    systems are drawn from the seed (`seed`, `first` + j): a campaign split into parts
+    (`first` = the part's offset in the whole list) draws the whole one's systems."""
     records = []
-    for j, (name, solver) in enumerate(pairs):
+    for j, (name, solver) in enumerate(pairs, start=first):
         fam = families()[name]
         rng = np.random.default_rng([seed, j])
         batch = fam.sample(rng, lanes)
@@ -579,12 +593,12 @@ def reference_jacobian(fam, batch, i, r, h):
     return cols[h], np.max(np.abs(cols[h] - cols[2 * h]))
 
 
-def derivative_campaign(pairs, lanes: int, seed: int, tol=BASE_TOL):
+def derivative_campaign(pairs, lanes: int, seed: int, tol=BASE_TOL, first: int = 0):
     """Compare jacfwd and reverse-mode grad of x_final with the reference's central
     differences on transversal systems. Returns rows (family, solver, lane, error of
-    jacfwd, error of grad, tolerance)."""
+    jacfwd, error of grad, tolerance). `first`: as in `campaign`."""
     rows = []
-    for j, (name, solver) in enumerate(pairs):
+    for j, (name, solver) in enumerate(pairs, start=first):
         fam = families()[name]
         rng = np.random.default_rng([seed, 1000 + j])
         batch = fam.sample(rng, lanes, grazing_fraction=0.0)

@@ -87,7 +87,7 @@ class _Scene:
 
     def field(self, t, x):
         v = self.f.field(t, x, self.a, np)
-        if not np.all(np.isfinite(v)):  # DOP853 would shrink its step forever
+        if not np.isfinite(v).all():  # DOP853 would shrink its step forever
             raise _NonFinite(t, x)
         return v
 

@@ -1,0 +1,32 @@
+"""The slow job's fuzz campaign: every family with two solvers in rotation, 256 random
+systems per pair, 5,120 in all (`docs/hard_cases.md` has the counts).
+
+One test per (family, solver) pair, each drawing the systems the whole campaign draws for
+it: a failure names its pair, and the slow job's two workers start on this module first
+(xdist orders modules by their number of tests), so that its half hour runs beside the
+rest of the job instead of after it.
+"""
+
+import pytest
+
+from . import compare as C
+from .checks import assert_no_defects, report
+
+PLAN = C.plan(solvers_per_family=2)
+LANES = 256
+SEED = 4096
+
+
+def test_the_campaign_runs_5000_systems_over_every_family_and_solver():
+    assert len(PLAN) * LANES >= 5000
+    assert {f for f, _ in PLAN} == set(C.families())
+    assert {s for _, s in PLAN} == set(C.SOLVERS)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("index", range(len(PLAN)), ids=[f"{f}-{s}" for f, s in PLAN])
+def test_fuzz_large(index):
+    records = C.campaign(PLAN[index : index + 1], lanes=LANES, seed=SEED, first=index)
+    assert len(records) == LANES
+    report(records, f"fuzz (slow): {PLAN[index]}")
+    assert_no_defects(records)
