@@ -3,8 +3,8 @@ systems per pair, 5,120 in all (`docs/hard_cases.md` has the counts).
 
 One test per (family, solver) pair, each drawing the systems the whole campaign draws for
 it: a failure names its pair, and the slow job's two workers start on this module first
-(xdist orders modules by their number of tests), so that its half hour runs beside the
-rest of the job instead of after it.
+(xdist orders modules by their number of tests), so that the job's longest module runs
+beside the rest of the job instead of after it.
 """
 
 import pytest
