@@ -84,7 +84,8 @@ def guarded(g, sa, restart):
     def G(s):
         ds = s - sa
         ok = ds > 0
-        return jnp.where(restart, safe_divide(g(s), ds, ok), g(s))
+        g_s = g(s)
+        return jnp.where(restart, safe_divide(g_s, ds, ok), g_s)
 
     return G
 
