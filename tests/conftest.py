@@ -1,3 +1,4 @@
+import json
 import os
 import tempfile
 from pathlib import Path
@@ -52,9 +53,58 @@ def _release_compiled_programs():
 
 def pytest_collection_modifyitems(config, items):
     # `-m slow` selects the slow job; the default run (no -m) skips slow tests.
-    if config.getoption("-m"):
-        return
-    skip = pytest.mark.skip(reason="slow: run with `pytest -m slow`")
-    for item in items:
-        if "slow" in item.keywords:
-            item.add_marker(skip)
+    job = "slow" if config.getoption("-m") else "default"
+    if job == "default":
+        skip = pytest.mark.skip(reason="slow: run with `pytest -m slow`")
+        for item in items:
+            if "slow" in item.keywords:
+                item.add_marker(skip)
+    longest_modules_first(items, job)
+
+
+# Each job's two workers take whole modules (`--dist loadfile`) in the order collected
+# (`--no-loadscope-reorder`: xdist would otherwise order them by their number of tests).
+# A long module handed out last runs alone while the other worker idles, so modules are
+# ordered by their measured time in the job, longest first (the greedy schedule that
+# keeps the two workers' ends close). The times live in `module_seconds.json`; update them
+# after a change that moves them with `pytest -n 2 --record-module-seconds` and
+# `pytest -n 2 -m slow --record-module-seconds` (each job writes its own entry). A module
+# the file does not know runs after the known ones, in collection order.
+_MODULE_SECONDS = Path(__file__).with_name("module_seconds.json")
+
+
+def _module(nodeid):
+    return nodeid.split("::", 1)[0]
+
+
+def _module_seconds():
+    return json.loads(_MODULE_SECONDS.read_text()) if _MODULE_SECONDS.exists() else {}
+
+
+def longest_modules_first(items, job):
+    seconds = _module_seconds().get(job, {})
+    items.sort(key=lambda item: -seconds.get(_module(item.nodeid), 0.0))  # (a stable sort)
+
+
+def pytest_addoption(parser):
+    parser.addoption("--record-module-seconds", action="store_true",
+                     help="write this job's time per test module to tests/module_seconds.json")
+
+
+_recorded = {}
+
+
+def pytest_runtest_logreport(report):
+    _recorded[_module(report.nodeid)] = _recorded.get(_module(report.nodeid), 0.0) + report.duration
+
+
+def pytest_sessionfinish(session):
+    config = session.config
+    if not config.getoption("--record-module-seconds") or hasattr(config, "workerinput"):
+        return  # (under xdist the controller records: it receives every worker's reports)
+    job = "slow" if config.getoption("-m") else "default"
+    table = _module_seconds()
+    # (merged: a run of some modules updates theirs and keeps the others')
+    seconds = {**table.get(job, {}), **{m: round(s, 1) for m, s in _recorded.items()}}
+    table[job] = dict(sorted(seconds.items(), key=lambda kv: -kv[1]))
+    _MODULE_SECONDS.write_text(json.dumps(table, indent=1) + "\n")

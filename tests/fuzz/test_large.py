@@ -2,9 +2,9 @@
 systems per pair, 5,120 in all (`docs/hard_cases.md` has the counts).
 
 One test per (family, solver) pair, each drawing the systems the whole campaign draws for
-it: a failure names its pair, and the slow job's two workers start on this module first
-(xdist orders modules by their number of tests), so that the job's longest module runs
-beside the rest of the job instead of after it.
+it: a failure names its pair. The slow job's workers start on this module, its longest
+(`tests/conftest.py: longest_modules_first`), so that it runs beside the rest of the job
+instead of after it.
 """
 
 import pytest
