@@ -265,15 +265,12 @@ def stores_pay(program: "Program", init) -> bool:
     """Whether reverse mode stores each step's linearisation (`_loop/stored.py`) rather
     than a carry per step that the backward pass runs again (Equinox's checkpointed loop).
 
-    Measured (one core, min of 7-11, both in the same process), every step stored / the
-    default two levels: forced impact oscillator, 864 bytes of residuals per step (566
-    since a landing's are stored apart; then 2.3x / 3.4x on another machine), 3.0x /
-    4.1-4.4x the primal against 3.55x / 4.5-5.0x; a Fourier forcing of 10/40/100
-    coefficients, 3/6/24 KB per step (the pieces the blocks stage them in, and their
-    store, cost more than a step's re-run): 4.7/6.0/6.4x / 5.5/7.6/10.9x against
-    4.0/4.9/4.3x / 5.3/6.3/5.8x. Under `vmap` the stores hold every lane's residuals:
-    forced oscillator, 10 impacts, `vmap(grad)`, 16 lanes 3.40x / 4.14x against 3.55x /
-    4.49x, 128 lanes 6.39x / 6.14x against 4.53x / 5.07x; batched runs keep carries.
+    Stores pay where a step's residuals are small (under `_STORED_RESIDUAL_BYTES`): the
+    backward pass then applies them instead of running the step again. Where they are
+    large (a Fourier forcing's sines and cosines of every stage), staging and storing
+    them costs more than the re-run; under `vmap` the stores hold every lane's residuals,
+    so batched runs keep carries. The measurements behind the threshold are in
+    `benchmarks/README.md`, *Each step's linearisation stored*.
     """
     if under_vmap(init):
         return False
