@@ -1,3 +1,4 @@
+import collections
 import json
 import os
 import tempfile
@@ -52,8 +53,7 @@ def _release_compiled_programs():
 
 
 def pytest_collection_modifyitems(config, items):
-    # `-m slow` selects the slow job; the default run (no -m) skips slow tests.
-    job = "slow" if config.getoption("-m") else "default"
+    job = _job(config)
     if job == "default":
         skip = pytest.mark.skip(reason="slow: run with `pytest -m slow`")
         for item in items:
@@ -71,6 +71,11 @@ def pytest_collection_modifyitems(config, items):
 # `pytest -n 2 -m slow --record-module-seconds` (each job writes its own entry). A module
 # the file does not know runs after the known ones, in collection order.
 _MODULE_SECONDS = Path(__file__).with_name("module_seconds.json")
+
+
+def _job(config):
+    """`-m slow` selects the slow job; the default run (no -m) skips slow tests."""
+    return "slow" if config.getoption("-m") else "default"
 
 
 def _module(nodeid):
@@ -91,18 +96,18 @@ def pytest_addoption(parser):
                      help="write this job's time per test module to tests/module_seconds.json")
 
 
-_recorded = {}
+_recorded = collections.defaultdict(float)
 
 
 def pytest_runtest_logreport(report):
-    _recorded[_module(report.nodeid)] = _recorded.get(_module(report.nodeid), 0.0) + report.duration
+    _recorded[_module(report.nodeid)] += report.duration
 
 
 def pytest_sessionfinish(session):
     config = session.config
     if not config.getoption("--record-module-seconds") or hasattr(config, "workerinput"):
         return  # (under xdist the controller records: it receives every worker's reports)
-    job = "slow" if config.getoption("-m") else "default"
+    job = _job(config)
     table = _module_seconds()
     # (merged: a run of some modules updates theirs and keeps the others')
     seconds = {**table.get(job, {}), **{m: round(s, 1) for m, s in _recorded.items()}}
