@@ -68,17 +68,22 @@ def args_of(gamma, e):
     pytest.param("fold", fold_closed, 0.01, marks=pytest.mark.slow),
 ])
 def test_forced_point_and_its_derivative_match_the_closed_form(kind, closed, offset):
+    """The point (the aux output) and its derivative from one `jax.jacfwd`: one compiled
+    program, where a plain solve first compiled another for the same point."""
     gamma, d_gamma = closed(E)
     start = guess(kind, gamma + offset)
-    point = gj.locate_bifurcation(TABLE, start, args_of, E, rtol=1e-11)
+
+    def located(e):
+        point = gj.locate_bifurcation(TABLE, start, args_of, e, rtol=1e-11)
+        return point.mu, point
+
+    derivative, point = jax.jacfwd(located, has_aux=True)(E)
     assert point.message == "SUCCESS"
     assert point.kind == kind
     np.testing.assert_allclose(float(point.mu), gamma, atol=1e-9)
     target = -1.0 if kind == "period-doubling" else 1.0
     assert np.min(np.abs(np.asarray(point.multipliers) - target)) < 1e-8
     assert abs(float(point.test_value)) < 1e-9
-    derivative = jax.jacfwd(
-        lambda e: gj.locate_bifurcation(TABLE, start, args_of, e, rtol=1e-11).mu)(E)
     np.testing.assert_allclose(float(derivative), d_gamma, rtol=1e-7)
 
 

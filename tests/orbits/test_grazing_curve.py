@@ -29,13 +29,20 @@ def _amplitude(omega):
 
 
 @pytest.fixture(scope="module")
-def forced_curve():
+def free_orbit():
+    """The non-impacting orbit at (ω, σ) = (0.8, 3.0), where every test here starts (it
+    was solved again in each)."""
     omega, sigma = 0.8, 3.0  # the free response clears the stop by 0.29 here
     args = _osc(omega, sigma)
     orbit = gj.find_periodic_orbit(OSC, np.asarray(ex.linear_response(0.0, args)),
                                    2 * math.pi / omega, args, fixed_period=True, **TOL)
     assert int(orbit.status) == gj.OrbitStatus.SUCCESS
-    return gj.continue_grazing(OSC, orbit, _osc, omega, sigma, 0.6, period_of=_period,
+    return orbit
+
+
+@pytest.fixture(scope="module")
+def forced_curve(free_orbit):
+    return gj.continue_grazing(OSC, free_orbit, _osc, 0.8, 3.0, 0.6, period_of=_period,
                                progress=False, **TOL)
 
 
@@ -140,9 +147,12 @@ def test_grazing_closed_form_derivatives_two_ways():
 
 
 @pytest.mark.parametrize("parameter", ["omega", "zeta"])
-def test_located_grazing_amplitude_and_its_derivatives(parameter):
+def test_located_grazing_amplitude_and_its_derivatives(parameter, free_orbit):
     """`locate_grazing` solves σ_graz at ν = ω or ζ (μ = σ) and `jax.jacfwd` differentiates
-    it by the implicit function theorem: both against the closed form."""
+    it by the implicit function theorem: both against the closed form. The point (the aux
+    output) and its derivative come from one `jacfwd`: one compiled program, where a
+    plain solve first compiled another. The start is `free_orbit`: at (ω, ζ, σ) =
+    (0.8, ζ, 3.0) both parameters' starts are that orbit."""
     omega, zeta = 0.8, ZETA
 
     def args_of(sigma, nu):
@@ -154,37 +164,34 @@ def test_located_grazing_amplitude_and_its_derivatives(parameter):
         return 2 * jnp.pi / (nu if parameter == "omega" else omega)
 
     nu = omega if parameter == "omega" else zeta
-    start = args_of(3.0, nu)
-    orbit = gj.find_periodic_orbit(OSC, np.asarray(ex.linear_response(0.0, start)),
-                                   2 * math.pi / omega, start, fixed_period=True, **TOL)
+    orbit = free_orbit
 
     def located(n):
-        return gj.locate_grazing(OSC, orbit, args_of, n, mu=3.0, nu_guess=nu,
-                                 period_of=period_of, **TOL)
+        point = gj.locate_grazing(OSC, orbit, args_of, n, mu=3.0, nu_guess=nu,
+                                  period_of=period_of, **TOL)
+        return point.mu, point
 
     sigma, d_omega, d_zeta = _grazing_amplitude(omega, zeta)
-    point = located(nu)
+    derivative, point = jax.jacfwd(located, has_aux=True)(nu)
     assert point.message == "SUCCESS" and point.kind == "grazing"
     # Newton's tolerance 1e-10 relative, converged quadratically: the fixed point's own
     # accuracy (rtol 1e-12, see the curve tests) is what is left.
     assert abs(float(point.mu) - sigma) < 1e-9
     assert abs(float(point.test_value)) < 1e-9 and int(point.num_impacts) == 0
     np.testing.assert_allclose(np.asarray(point.x0), [sigma, 0.0], atol=1e-9)
-    derivative = float(jax.jacfwd(lambda n: located(n).mu)(nu))
-    np.testing.assert_allclose(derivative, d_omega if parameter == "omega" else d_zeta,
+    np.testing.assert_allclose(float(derivative), d_omega if parameter == "omega" else d_zeta,
                                rtol=1e-8)
     with pytest.raises(ValueError, match="nu_guess"):
         jax.jacfwd(lambda n: gj.locate_grazing(OSC, orbit, args_of, n, mu=3.0).mu)(nu)
 
 
-def test_grazing_is_a_kind_of_bifurcation_point_and_curve(forced_curve):
+def test_grazing_is_a_kind_of_bifurcation_point_and_curve(forced_curve, free_orbit):
     """`locate_bifurcation` and `continue_bifurcation` take grazing points too: with μ = σ
     and ν = ω, the located point is σ_graz(ω), and the curve followed in ω is
     `continue_grazing`'s (the fixture, in (ω, σ)) with the parameters' roles swapped."""
     omega, sigma = 0.8, 3.0
     args = _osc(omega, sigma)
-    orbit = gj.find_periodic_orbit(OSC, np.asarray(ex.linear_response(0.0, args)),
-                                   2 * math.pi / omega, args, fixed_period=True, **TOL)
+    orbit = free_orbit
     contacts = gj.orbit_contacts(OSC, orbit, args, max_depth=math.inf, **TOL)
     m = int(np.argmin(np.abs(np.asarray(contacts.depth))))
     point = gj.GrazingPoint(mu=sigma, orbit=orbit, surface=int(contacts.surfaces[m]),
