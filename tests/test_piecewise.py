@@ -3,7 +3,9 @@ sliding, against closed forms and an independent SciPy computation.
 
 Accuracy bounds are scaled by the solver tolerance: event times within `C · TOL · (1 + t)`.
 Each distinct configuration costs one XLA compilation (tens of seconds on a shared CPU), so
-the runs are `jax.jit`-ed once per module and shared between tests.
+the tests share scene objects, options and results: `simulate` outside `jit` compiles once
+per scene object and options (t0, t1, x0, args are inputs), and the module's own `jit`s use
+the quicker-compiling XLA options that `simulate` uses (`quick_jit`).
 """
 
 import functools
@@ -27,18 +29,30 @@ TOL = 1e-10
 C = 50.0
 
 
+def quick_jit(fn):
+    """`jax.jit` with XLA's quicker emitters, as `simulate` compiles outside `jit`
+    (`grazejax/_compiler.py`): compiling is most of these tests' time."""
+    return jax.jit(fn, compiler_options=gj.compiler_options(batched=False))
+
+
+# One friction oscillator, saved at the times `check_field_continuity` samples (1001 from
+# t0 to t1): its runs below and the continuity check share one compiled program.
+FRICTION_TS = np.linspace(0.0, 20.0, 1001)
+
+
 @functools.cache
-def friction_run():
-    fo = ex.friction_oscillator()
-    ts = jnp.linspace(5 * math.pi + 0.5, 20.0, 7)
-    run = jax.jit(lambda y0, mu: gj.simulate(fo.scene, y0, 0.0, 20.0, {"mu": mu}, rtol=TOL,
-                                             atol=TOL, saveat=ts))
-    return fo, run
+def friction_oscillator():
+    return ex.friction_oscillator()
+
+
+def friction_run(y0, mu):
+    return gj.simulate(friction_oscillator().scene, y0, 0.0, 20.0, {"mu": mu}, rtol=TOL,
+                       atol=TOL, saveat=FRICTION_TS)
 
 
 def test_friction_oscillator_turns_and_sticks_at_5pi():
-    fo, run = friction_run()
-    sol = run(fo.state([1.0, 0.0], "backward"), 0.1)
+    fo = friction_oscillator()
+    sol = friction_run(fo.state([1.0, 0.0], "backward"), 0.1)
     assert gj.Status(int(sol.status)) == gj.Status.SUCCESS
     events = fo.events(sol)
     times, points = ex.friction_oscillator_turns(1.0, 0.1)
@@ -50,7 +64,10 @@ def test_friction_oscillator_turns_and_sticks_at_5pi():
     turned = np.array([e.x_pre[0] for e in events])
     assert np.max(np.abs(turned - points)) < C * TOL * (1 + times[-1])
     # At rest after 5π, in the stick band, for good: the Filippov field there is (0, 0).
-    xs, ms = fo.split(np.asarray(sol.xs))
+    # (Checked at every saved time from 5π + 0.5 to 20: 190 of them.)
+    after = np.asarray(sol.ts) >= 5 * math.pi + 0.5
+    assert after.sum() > 150
+    xs, ms = fo.split(np.asarray(sol.xs)[after])
     assert np.all(ms == fo.mode_index("stick"))
     assert np.all(np.abs(xs[:, 0]) <= 0.1)
     assert np.max(np.abs(xs[:, 0] - events[-1].x_pre[0])) < 1e-14
@@ -58,20 +75,20 @@ def test_friction_oscillator_turns_and_sticks_at_5pi():
 
 
 def test_vmap_sliding_and_free_lanes_equal_single_runs():
-    fo, run = friction_run()
+    fo = friction_oscillator()
     # Lane 0 sticks at 5π; lane 1 starts in the stick band and sticks at once; lanes 2, 3
     # still swing at t = 20 (they stick after ~50 and ~15 half cycles).
     starts = [1.0, 0.05, 10.0, -3.0]
     # `start` picks the mode a state on Σ moves into: lane 1 slides from t = 0.
     y0 = jnp.stack([fo.start([x, 0.0], "backward", {"mu": 0.1}) for x in starts])
     assert [fo.mode_of(y) for y in y0] == ["backward", "stick", "backward", "forward"]
-    batch = jax.vmap(run, in_axes=(0, None))(y0, 0.1)
+    batch = quick_jit(jax.vmap(friction_run, in_axes=(0, None)))(y0, 0.1)
     final_modes = [fo.mode_of(y) for y in np.asarray(batch.x_final)]
     assert final_modes[:2] == ["stick", "stick"]
     assert final_modes[2:] != ["stick", "stick"] and "stick" not in final_modes[2:]
     assert not np.any(np.isnan(np.asarray(batch.x_final)))
     for i in range(len(starts)):
-        single = run(y0[i], 0.1)
+        single = friction_run(y0[i], 0.1)
         lane = jax.tree.map(lambda leaf, i=i: leaf[i], batch)
         np.testing.assert_allclose(lane.x_final, single.x_final, rtol=0, atol=1e-12)
         np.testing.assert_array_equal(lane.impact_surface, single.impact_surface)
@@ -84,8 +101,8 @@ def test_vmap_sliding_and_free_lanes_equal_single_runs():
 def test_rocking_block_impact_times():
     rb = ex.rocking_block()
     args = {"p": 2.0, "alpha": 0.2, "e": 0.9}
-    sol = jax.jit(lambda y0: gj.simulate(rb.scene, y0, 0.0, 6.0, args, rtol=TOL, atol=TOL))(
-        rb.state([0.1, 0.0], "right"))
+    sol = gj.simulate(rb.scene, rb.state([0.1, 0.0], "right"), 0.0, 6.0, args, rtol=TOL,
+                      atol=TOL)
     events = rb.events(sol)
     assert len(events) >= 5 and all(e.label == "TRANSITION" for e in events)
     assert [e.target for e in events[:3]] == ["left", "right", "left"]
@@ -94,16 +111,22 @@ def test_rocking_block_impact_times():
     assert np.max(np.abs(got - exact)) < C * TOL * (1 + got[-1])
 
 
+# One belt and one relay for the module: their runs with the same options share one
+# compiled program (`simulate` compiles once per scene object and options).
+@functools.cache
+def belt_stick_slip():
+    return ex.belt_stick_slip()
+
+
 @pytest.mark.slow
 def test_belt_stick_slip_times():
-    bs = ex.belt_stick_slip()
+    bs = belt_stick_slip()
     v_b, mu_s, mu_d = 0.5, 0.3, 0.2
     x_stick, stick, slip = ex.belt_stick_slip_cycle(v_b, mu_s, mu_d)
     period = stick + slip
     t1 = 2 * period + stick + 0.5
-    sol = jax.jit(lambda y0: gj.simulate(bs.scene, y0, 0.0, t1, {"v_b": v_b, "mu_s": mu_s,
-                                                                   "mu_d": mu_d},
-                                         rtol=TOL, atol=TOL))(bs.state([x_stick, v_b], "stick"))
+    sol = gj.simulate(bs.scene, bs.state([x_stick, v_b], "stick"), 0.0, t1,
+                      {"v_b": v_b, "mu_s": mu_s, "mu_d": mu_d}, rtol=TOL, atol=TOL)
     events = bs.events(sol)
     assert [e.target for e in events] == ["slow", "stick"] * 2 + ["slow"]
     exact = np.array([stick, period, period + stick, 2 * period, 2 * period + stick])
@@ -131,13 +154,32 @@ def relay_half_period_scipy(args):
     return z[0], z[1]
 
 
+@functools.cache
+def relay():
+    """The relay scene, its args (ζ = 0.1), SciPy's half period `(x0, h)`."""
+    args = ex.relay_feedback_args(zeta=0.1, mu=1.0)
+    return ex.relay_feedback(), args, *relay_half_period_scipy(args)
+
+
+@functools.cache
+def relay_orbit():
+    """The relay's cycle found by `find_periodic_orbit` from a perturbed guess (default
+    tolerances), with the exact state a quarter period in: shared by the orbit test and
+    the continuation test, which starts from it."""
+    rf, args, x0, h = relay()
+    quarter = gj.simulate(rf.scene, rf.state([x0, 0.0], "plus"), 0.0, h / 2, args, rtol=TOL,
+                          atol=TOL).x_final
+    guess = quarter.at[1].multiply(1.01)  # x[0] is the section (fix=0): keep it
+    orbit = gj.find_periodic_orbit(rf.scene, guess, 2 * h * 1.01, args, fix=0,
+                                   start_at_impact=False, num_impacts=2)
+    return quarter, orbit
+
+
 @pytest.mark.slow
 def test_relay_feedback_orbit_matches_scipy():
-    rf = ex.relay_feedback()
-    args = ex.relay_feedback_args(zeta=0.1, mu=1.0)
-    x0, h = relay_half_period_scipy(args)
-    sol = jax.jit(lambda y0: gj.simulate(rf.scene, y0, 0.0, 3.5 * h, args, rtol=TOL,
-                                         atol=TOL))(rf.state([x0, 0.0], "plus"))
+    rf, args, x0, h = relay()
+    sol = gj.simulate(rf.scene, rf.state([x0, 0.0], "plus"), 0.0, 3.5 * h, args, rtol=TOL,
+                      atol=TOL)
     events = rf.events(sol)
     assert [e.label for e in events] == ["CROSS"] * 3
     got = np.array([e.time for e in events])
@@ -164,16 +206,18 @@ def filippov_belt():
 def test_jacfwd_through_slide_entry_and_exit():
     belt = filippov_belt()
 
-    def final(p):  # p = (x0, v0, v_b, mu)
+    def run(p):  # p = (x0, v0, v_b, mu)
         y0 = jnp.concatenate([p[:2], jnp.zeros(1)])  # mode 0 = "slow"
-        sol = gj.simulate(belt.scene, y0, 0.0, 3.0, {"v_b": p[2], "mu": p[3]}, rtol=1e-12,
-                          atol=1e-12)
-        return sol.x_final[:2]
+        return gj.simulate(belt.scene, y0, 0.0, 3.0, {"v_b": p[2], "mu": p[3]}, rtol=1e-12,
+                           atol=1e-12)
 
     p = jnp.array([0.0, 0.0, 0.5, 0.6])
-    final = jax.jit(final)
-    sol = gj.simulate(belt.scene, belt.state([0.0, 0.0], "slow"), 0.0, 3.0,
-                      {"v_b": 0.5, "mu": 0.6}, rtol=1e-12, atol=1e-12)
+    # (The events of the run that `final` is: one program for both, where a `simulate`
+    # from belt.state([0, 0], "slow") would compile another.)
+    assert belt.mode_of(jnp.concatenate([p[:2], jnp.zeros(1)])) == "slow"
+    sol_of = quick_jit(run)
+    sol = sol_of(p)
+    final = lambda p: sol_of(p).x_final[:2]  # noqa: E731
     assert [e.label for e in belt.events(sol)] == ["SLIDE", "RELEASE"]
     # Closed form: v = μ sin t reaches v_b at t_s, sticks from x_s to x = μ, then swings
     # about μ with amplitude v_b.
@@ -181,7 +225,7 @@ def test_jacfwd_through_slide_entry_and_exit():
     t_e = t_s + (0.6 - 0.6 * (1 - math.cos(t_s))) / 0.5
     exact = [0.6 + 0.5 * math.sin(3.0 - t_e), 0.5 * math.cos(3.0 - t_e)]
     np.testing.assert_allclose(final(p), exact, atol=1e-9)
-    jac = np.asarray(jax.jit(jax.jacfwd(final))(p))
+    jac = np.asarray(quick_jit(jax.jacfwd(lambda p: run(p).x_final[:2]))(p))
     fd = central_differences(lambda q: final(jnp.asarray(q)), np.asarray(p), 1e-5)
     np.testing.assert_allclose(jac, fd, atol=1e-6)
     # Sliding forgets the start: the state leaves Σ at (μ, v_b) whatever x0 was, only
@@ -219,7 +263,7 @@ def test_sign_formulation_is_detected_and_mode_formulation_passes():
     with pytest.raises(ValueError, match="PiecewiseScene"):
         gj.check_field_continuity(sign_scene, jnp.array([1.0, 0.0]), 0.0, 20.0, args,
                                   rtol=TOL, atol=TOL)
-    fo = ex.friction_oscillator()
+    fo = friction_oscillator()  # (the program of the runs above)
     report = gj.check_field_continuity(fo.scene, fo.state([1.0, 0.0], "backward"), 0.0, 20.0,
                                        args, rtol=TOL, atol=TOL)
     assert report.ok
@@ -230,14 +274,8 @@ def test_relay_periodic_orbit_with_find_periodic_orbit():
     # The mode is one more coordinate to Newton: its row of the monodromy is 0. Start off Σ
     # (a start on Σ ends its period at a mode change, a different surface of the compiled
     # scene than the one it starts on: pass start_at_impact=True, num_impacts=2 then).
-    rf = ex.relay_feedback()
-    args = ex.relay_feedback_args(zeta=0.1, mu=1.0)
-    x0, h = relay_half_period_scipy(args)
-    quarter = gj.simulate(rf.scene, rf.state([x0, 0.0], "plus"), 0.0, h / 2, args, rtol=TOL,
-                          atol=TOL).x_final
-    guess = quarter.at[1].multiply(1.01)  # x[0] is the section (fix=0): keep it
-    orbit = gj.find_periodic_orbit(rf.scene, guess, 2 * h * 1.01, args, fix=0,
-                                   start_at_impact=False, num_impacts=2)
+    rf, args, x0, h = relay()
+    quarter, orbit = relay_orbit()  # (from the guess quarter·(1, 1.01), period 2h·1.01)
     assert gj.OrbitStatus(int(orbit.status)) == gj.OrbitStatus.SUCCESS, orbit.message
     assert abs(float(orbit.period) - 2 * h) < 1e3 * TOL * 2 * h
     np.testing.assert_allclose(orbit.x0, quarter, atol=1e3 * TOL * abs(x0))
@@ -255,15 +293,17 @@ def test_relay_periodic_orbit_with_find_periodic_orbit():
 def test_relay_orbit_continues_in_damping():
     # Continuation on a mode-carrying scene: the relay cycle followed in ζ (an autonomous
     # family, period free), every point's period against SciPy's expm + fsolve orbit.
-    rf = ex.relay_feedback()
+    # It starts from the orbit of the test above (found from a perturbed guess; one Newton
+    # solve less to compile): `continue_orbit` re-phases it and solves it again before the
+    # first step. Its atol is the default, scaled to the orbit as `find_periodic_orbit`'s
+    # (1e-2·TOL·max|x|, below TOL): the same period map, whose programs (the linearisation)
+    # the orbit's solve compiled.
+    rf, _, _, _ = relay()
     args_of = lambda zeta: ex.relay_feedback_args(zeta=zeta, mu=1.0)  # noqa: E731
-    x0, h = relay_half_period_scipy(args_of(0.1))
-    quarter = gj.simulate(rf.scene, rf.state([x0, 0.0], "plus"), 0.0, h / 2, args_of(0.1),
-                          rtol=TOL, atol=TOL).x_final
-    orbit = gj.find_periodic_orbit(rf.scene, quarter, 2 * h, args_of(0.1), fix=0,
-                                   start_at_impact=False, num_impacts=2, rtol=TOL, atol=TOL)
-    branch = gj.continue_orbit(rf.scene, orbit, args_of, 0.1, 0.15, progress=False, rtol=TOL,
-                               atol=TOL)
+    _, orbit = relay_orbit()
+    assert gj.OrbitStatus(int(orbit.status)) == gj.OrbitStatus.SUCCESS, orbit.message
+    assert orbit.settings.atol <= TOL
+    branch = gj.continue_orbit(rf.scene, orbit, args_of, 0.1, 0.15, progress=False, rtol=TOL)
     assert gj.ContinuationStatus(int(branch.status)) == gj.ContinuationStatus.REACHED_STOP, (
         branch.message)
     assert abs(float(branch.mu[-1]) - 0.15) < 1e-12 and len(branch) >= 3
@@ -277,7 +317,7 @@ def test_relay_orbit_continues_in_damping():
 def test_belt_stick_slip_periodic_orbit_is_superstable():
     # COCO's stickslip case: the cycle sticks once per period, and sticking forgets the
     # velocity, so the multipliers are 1 (the flow direction), 0 (sticking) and 0 (the mode).
-    bs = ex.belt_stick_slip()
+    bs = belt_stick_slip()  # (`mid`'s run: test_belt_stick_slip_times's program)
     args = {"v_b": 0.5, "mu_s": 0.3, "mu_d": 0.2}
     x_stick, stick, slip = ex.belt_stick_slip_cycle(0.5, 0.3, 0.2)
     mid = gj.simulate(bs.scene, bs.state([0.3, 0.5], "slow"), 0.0, slip / 2, args, rtol=TOL,

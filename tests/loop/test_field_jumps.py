@@ -6,6 +6,7 @@ large curvature), the two `sign(·)` scenes of issue 13 against their mode formu
 a no-false-alarm campaign over every example scene of the package (slow).
 """
 
+import functools
 import math
 
 import jax
@@ -87,6 +88,14 @@ def test_the_probe_margins():
 ROCK = {"p": 2.0, "alpha": 0.2, "e": 0.9}
 
 
+# The tests' own `jax.jit`s compile with XLA's quicker emitters, as `simulate` does outside
+# `jit` (`grazejax/_compiler.py`): compiling is most of these tests' time.
+def quick_jit(fn):
+    return jax.jit(fn, compiler_options=gj.compiler_options(batched=False))
+
+
+# (Each scene is built once: the runs of one scene share what the package caches per scene.)
+@functools.cache
 def sign_rocking_block():
     """θ'' = p²(θ − α sign θ), two pieces Φ = ±θ with a restitution jump (issue 13)."""
     field = lambda t, x, a: jnp.stack([x[1], a["p"] ** 2 * (x[0] - a["alpha"] * jnp.sign(x[0]))])  # noqa: E731
@@ -95,6 +104,7 @@ def sign_rocking_block():
                             gj.Surface(lambda t, x, a: -x[0], restitution)])
 
 
+@functools.cache
 def sign_friction_oscillator():
     """x'' + x = −μ sign(x'), identity-jump events on x' = 0 from each side (issue 13)."""
     field = lambda t, x, a: jnp.stack([x[1], -x[0] - a["mu"] * jnp.sign(x[1])])  # noqa: E731
@@ -105,8 +115,8 @@ def sign_friction_oscillator():
 
 def test_sign_rocking_block_is_refused_at_its_first_impact():
     first = ex.rocking_block_impact_times(0.1, ROCK["p"], ROCK["alpha"], ROCK["e"], 1)[0]
-    run = jax.jit(lambda x0: gj.simulate(sign_rocking_block(), x0, 0.0, 10.0, ROCK, rtol=TOL,
-                                         atol=TOL, direction=1))
+    run = quick_jit(lambda x0: gj.simulate(sign_rocking_block(), x0, 0.0, 10.0, ROCK, rtol=TOL,
+                                           atol=TOL, direction=1))
     sol = run(jnp.array([0.1, 0.0]))
     assert gj.Status(int(sol.status)) == gj.Status.FIELD_DISCONTINUITY
     assert int(sol.num_impacts) == 1
@@ -128,9 +138,9 @@ def test_sign_friction_oscillator_is_refused_per_lane_at_its_first_turn():
     # Lanes 0, 1 (μ = 0) have a smooth field with the same events: they run to t1. From
     # (1, 0) the start is on x' = 0: refused at t0, before any flight used sign(0) = 0;
     # from (1, 0.3) at the first turn, at t = atan(0.3/1.1) (a circle about (−μ, 0)).
-    run = jax.jit(jax.vmap(lambda x0, mu: gj.simulate(sign_friction_oscillator(), x0, 0.0, 20.0,
-                                                      {"mu": mu}, rtol=TOL, atol=TOL,
-                                                      direction=1)))
+    run = quick_jit(jax.vmap(lambda x0, mu: gj.simulate(sign_friction_oscillator(), x0, 0.0,
+                                                        20.0, {"mu": mu}, rtol=TOL, atol=TOL,
+                                                        direction=1)))
     x0s = jnp.array([[1.0, 0.0], [1.0, 0.3], [1.0, 0.0], [1.0, 0.3]])
     sol = run(x0s, jnp.array([0.0, 0.0, 0.1, 0.1]))
     status = [gj.Status(int(s)) for s in sol.status]
@@ -244,7 +254,15 @@ _NEAR = np.array([-1e-6, -1e-9, -1e-12, 0.0, 1e-12, 1e-9, 1e-6])
 
 
 def campaign_cases():
-    """`(name, scene, x0s, t0, t1, args, options)`: one batch of lanes per case."""
+    """`(name, scene, x0s, t0, t1, args, options)`: one batch of lanes per case.
+
+    Each scene and each options dict is built once and shared by the cases that use it:
+    `run_campaign` runs the cases with the same scene object, options and direction of
+    time as one compiled program (their t0, t1 and args are traced, per lane). A backward
+    case's `x0s` is `("forward from", starts, options)`: it starts where the forward flow
+    from `starts` is at its t0, run with `options` (those of the scene's forward case, so
+    that the run to t0 adds lanes to that case's program rather than a program of its own).
+    """
     ball, ball_args = ex.bouncing_ball(), {"g": 9.81, "e": 0.8}
     table = ex.vibrating_table()
     table_args = {"g": 9.81, "e": 0.5, "A": 0.05, "omega": 10.0}
@@ -252,6 +270,7 @@ def campaign_cases():
     fourier = ex.fourier_impact_oscillator()
     fourier_args = ex.fourier_impact_oscillator_args([0.0, 1.0, 0.3], [0.0, 0.2, 0.0])
     long = {"max_impacts": 60, "rtol": TOL, "atol": TOL}
+    back = {"max_impacts": 20, "rtol": TOL, "atol": TOL}
     cases = [
         ("ball Zeno", ball, _grid([1.0, 0.0], 0.5, 6, 0), 0.0, 10.0, ball_args, {"max_impacts": 200}),
         ("ball stick", ball, _grid([1.0, 0.0], 0.5, 6, 1), 0.0, 10.0, ball_args,
@@ -265,20 +284,23 @@ def campaign_cases():
          {"max_impacts": 30}),
         ("fourier oscillator", fourier, _grid([0.0, 0.0], 0.3, 6, 7), 0.0, 40.0, fourier_args, long),
     ]
-    for name, (make, make_args) in ex.PAPER_SCENES.items():
-        cases.append((name, make(), _grid([0.5, 1.0], 0.4, 6, 8), 0.0, 30.0, make_args(), long))
+    paper = {name: make() for name, (make, _) in ex.PAPER_SCENES.items()}
+    for name, (_, make_args) in ex.PAPER_SCENES.items():
+        cases.append((name, paper[name], _grid([0.5, 1.0], 0.4, 6, 8), 0.0, 30.0, make_args(),
+                      long))
         # Backward from where the forward flow is at t = 8: through the same impacts.
-        cases.append((name + " backward", make(), ("forward from", _grid([0.5, 1.0], 0.4, 6, 8)),
-                      8.0, 0.0, make_args(), {"max_impacts": 20, "rtol": TOL, "atol": TOL}))
+        cases.append((name + " backward", paper[name],
+                      ("forward from", _grid([0.5, 1.0], 0.4, 6, 8), long), 8.0, 0.0,
+                      make_args(), back))
     cases += [
         # ex1dof's unperturbed flow circles (1, 0): radius 1 grazes x1 = 0.
-        ("ex1dof near grazing", ex.ex1dof(), _rings([1.0, 0.0], 1.0 + _NEAR, 0.0), 0.0, 30.0,
-         ex.ex1dof_args(0.0), long),
+        ("ex1dof near grazing", paper["ex1dof"], _rings([1.0, 0.0], 1.0 + _NEAR, 0.0), 0.0,
+         30.0, ex.ex1dof_args(0.0), long),
         # exnonaxial's flow is a rotation: radius 1 grazes x1 + x2 = √2 at angle π/4.
-        ("exnonaxial near grazing", ex.exnonaxial(), _rings([0.0, 0.0], 1.0 + _NEAR, 0.0), 0.0,
-         30.0, ex.exnonaxial_args(), long),
-        ("orbex2 near grazing", ex.orbex2(), _rings([0.0, 0.0], 1e-3 * (1.0 + _NEAR), 0.0), 0.0,
-         30.0, ex.orbex2_args(), long),
+        ("exnonaxial near grazing", paper["exnonaxial"], _rings([0.0, 0.0], 1.0 + _NEAR, 0.0),
+         0.0, 30.0, ex.exnonaxial_args(), long),
+        ("orbex2 near grazing", paper["orbex2"], _rings([0.0, 0.0], 1e-3 * (1.0 + _NEAR), 0.0),
+         0.0, 30.0, ex.orbex2_args(), long),
     ]
     rock, fo, belt, relay = (ex.rocking_block(), ex.friction_oscillator(),
                              ex.belt_stick_slip(), ex.relay_feedback())
@@ -300,23 +322,63 @@ def campaign_cases():
     return cases
 
 
+def _program_key(scene, t0, t1, options):
+    """What a batch's compiled program depends on: the scene object, the direction of time
+    and the options (x0, t0, t1 and the numbers in args are its traced inputs)."""
+    return id(scene), 1 if t1 > t0 else -1, tuple(sorted(options.items()))
+
+
+def run_cases(cases):
+    """Run `(name, scene, x0s, t0, t1, args, options)` cases, those with the same
+    `_program_key` as one `jit(vmap(simulate))` over their lanes concatenated (x0, t0, t1
+    and args per lane); returns `{name: Solution of its lanes}`."""
+    groups = {}
+    for case in cases:
+        _, scene, _, t0, t1, _, options = case
+        groups.setdefault(_program_key(scene, t0, t1, options), []).append(case)
+    sols = {}
+    for (_, direction, _), group in groups.items():
+        scene, options = group[0][1], group[0][6]
+        lanes = []  # (in NumPy: no small programs compiled for the bookkeeping)
+        for _, _, x0s, t0, t1, args, _ in group:
+            n = len(x0s)
+            per_lane = lambda v, n=n: np.broadcast_to(np.asarray(v, float),  # noqa: E731
+                                                      (n, *np.shape(v)))
+            lanes.append((np.asarray(x0s, float), per_lane(t0), per_lane(t1),
+                          jax.tree.map(per_lane, args)))
+        batch = jax.tree.map(lambda *leaves: np.concatenate(leaves), *lanes)
+        # (`quick_jit`: these batches are small, and compiling them is most of their time.)
+        run = quick_jit(jax.vmap(lambda x0, t0, t1, args, scene=scene, options=options,
+                                 direction=direction:
+                                 gj.simulate(scene, x0, t0, t1, args, direction=direction,
+                                             **options)))
+        sol = jax.tree.map(np.asarray, run(*batch))
+        stop = 0
+        for name, _, x0s, *_ in group:
+            start, stop = stop, stop + len(x0s)
+            sols[name] = jax.tree.map(lambda leaf, a=start, b=stop: leaf[a:b], sol)
+    return sols
+
+
 def run_campaign():
-    """Run every case as one `jit(vmap(simulate))`; returns `(name, statuses)` per case."""
-    results = []
-    for name, scene, x0s, t0, t1, args, options in campaign_cases():
-        direction = 1 if t1 > t0 else -1
-        if isinstance(x0s, tuple):  # start where the forward flow is at t0
-            forward = jax.vmap(lambda x0, scene=scene, t0=t0, args=args: gj.simulate(
-                scene, x0, 0.0, t0, args, direction=1, rtol=TOL, atol=TOL).x_final)
-            x0s = jax.jit(forward)(x0s[1])
-        run = jax.jit(jax.vmap(lambda x0, scene=scene, t0=t0, t1=t1, args=args, options=options,
-                               direction=direction:
-                               gj.simulate(scene, x0, t0, t1, args, direction=direction,
-                                           **options)))
-        sol = run(x0s)
-        results.append((name, [gj.Status(int(s)) for s in sol.status],
-                        np.asarray(sol.num_impacts)))
-    return results
+    """Run every case (`run_cases`); returns `(name, statuses, num_impacts)` per case, and
+    the same for the runs that bring the backward cases to their start."""
+    cases = campaign_cases()
+    # First the runs to the backward cases' starts (with the forward cases whose program
+    # they share), then the backward cases from their ends.
+    to_start = {name: (name + " (the run to its start)", scene, x0s[1], 0.0, t0, args, x0s[2])
+                for name, scene, x0s, t0, t1, args, options in cases if isinstance(x0s, tuple)}
+    first = run_cases([case for case in cases if not isinstance(case[2], tuple)]
+                      + list(to_start.values()))
+    sols = {**first, **run_cases([
+        (name, scene, first[to_start[name][0]].x_final, t0, t1, args, options)
+        for name, scene, x0s, t0, t1, args, options in cases if isinstance(x0s, tuple)])}
+    summary = lambda name: (name, [gj.Status(int(s)) for s in sols[name].status],  # noqa: E731
+                            np.asarray(sols[name].num_impacts))
+    starts = [summary(case[0]) for case in to_start.values()]
+    # (Each run to a start reaches it: the backward case starts at its t0.)
+    assert all(s == gj.Status.SUCCESS for _, status, _ in starts for s in status), starts
+    return [summary(case[0]) for case in cases], starts
 
 
 @pytest.mark.slow
@@ -324,14 +386,14 @@ def test_no_false_alarms_on_the_example_scenes(monkeypatch):
     # The probe itself on every scene: most example fields are continuous by construction
     # and their runs leave it out (test above), so it is forced in here.
     monkeypatch.setattr("grazejax._loop.program.continuous_in_state", lambda *a: False)
-    results = run_campaign()
-    alarms = [(name, i) for name, status, _ in results for i, s in enumerate(status)
+    results, starts = run_campaign()
+    alarms = [(name, i) for name, status, _ in results + starts for i, s in enumerate(status)
               if s == gj.Status.FIELD_DISCONTINUITY]
     lanes = sum(len(status) for _, status, _ in results)
     events = sum(int(np.sum(n)) for _, _, n in results)
     print(f"\nfield-jump campaign: {len(results)} cases, {lanes} runs, {events} events, "
           f"{len(alarms)} alarms")
-    for name, status, n in results:
+    for name, status, n in results + starts:
         print(f"  {name:28} {[s.name for s in status]}  events {n.tolist()}")
     assert lanes >= 100 and events >= 1000  # the campaign exercises the check
     assert alarms == []
