@@ -15,6 +15,12 @@ from scipy.integrate import solve_ivp
 import grazejax as gj
 
 
+def quick_jit(fn):
+    """`jax.jit` with XLA's quicker emitters, as `simulate` compiles outside `jit`
+    (`grazejax/_compiler.py`): compiling is most of a test's time."""
+    return jax.jit(fn, compiler_options=gj.compiler_options(batched=False))
+
+
 def central_differences(fn, x, h):
     """Central differences of `fn` at `x`: (fn(x + h e_k) - fn(x - h e_k)) / 2h, one column
     per coordinate k of `x` (a scalar `x` gives the derivative itself).

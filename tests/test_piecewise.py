@@ -21,18 +21,12 @@ import scipy.optimize
 import grazejax as gj
 from grazejax import examples as ex
 
-from .helpers import central_differences
+from .helpers import central_differences, quick_jit
 
 TOL = 1e-10
 # Event times carry the solver's error: C · TOL · (1 + t), with C covering the growth of
 # perturbations along the flow (the rocking block's saddle grows like e^{pt}).
 C = 50.0
-
-
-def quick_jit(fn):
-    """`jax.jit` with XLA's quicker emitters, as `simulate` compiles outside `jit`
-    (`grazejax/_compiler.py`): compiling is most of these tests' time."""
-    return jax.jit(fn, compiler_options=gj.compiler_options(batched=False))
 
 
 # One friction oscillator, saved at the times `check_field_continuity` samples (1001 from

@@ -20,6 +20,8 @@ import grazejax as gj
 from grazejax import examples as ex
 from grazejax._loop.field import continuous_in_state, field_jumps, field_probe
 
+from ..helpers import quick_jit
+
 TOL = 1e-10
 
 
@@ -86,12 +88,6 @@ def test_the_probe_margins():
 # --------------------------------------------------------------------------------------
 
 ROCK = {"p": 2.0, "alpha": 0.2, "e": 0.9}
-
-
-# The tests' own `jax.jit`s compile with XLA's quicker emitters, as `simulate` does outside
-# `jit` (`grazejax/_compiler.py`): compiling is most of these tests' time.
-def quick_jit(fn):
-    return jax.jit(fn, compiler_options=gj.compiler_options(batched=False))
 
 
 # (Each scene is built once: the runs of one scene share what the package caches per scene.)
