@@ -20,8 +20,13 @@ wall), and with central finite differences.
   non-smooth error TOL/h. With h = 1e-4 and |x'''| = O(10) both are ~1e-8: `FD = 1e-6`
   leaves a factor of ~30 for the O(10) constants.
 
-Compile time dominates: each (scene, mode) pair is compiled once at module level and
-reused by every test that needs it.
+Compile time dominates (each new configuration of a reverse-mode run is a program of its
+own, tens of seconds to build): each (scene, mode) pair is compiled once and reused by every
+check that needs it. One forward-mode program gives both jacfwd and the value
+(`with_value`: the value as jacfwd's aux, the forward-mode loop's primal, which central
+differences and closed forms are compared with), reverse-mode runs are jitted (a jitted
+gradient took ~20% less CPU to build than the same `jax.grad` run op by op), and runs that
+differ only in `t1` share one program (`t1` an input).
 """
 
 import functools
@@ -49,6 +54,18 @@ DIRECT = diffrax.DirectAdjoint()
 # DirectAdjoint stores every step of a loop bounded by max_steps: keep the bound near
 # what the runs below need (a few hundred steps).
 DIRECT_STEPS = 4000
+
+
+def with_value(f):
+    """`f` returning `(value, value)`: `jax.jacfwd(with_value(f), has_aux=True)` gives
+    `(jacobian, value)` from one forward-mode program, where a separate primal run would be
+    another program to compile."""
+
+    def both(*args):
+        value = f(*args)
+        return value, value
+
+    return both
 
 
 def assert_close(actual, expected, rtol):
@@ -86,16 +103,20 @@ def ball_loss(p, adjoint, max_steps=100_000):
     return sol.x_final[0] + sol.x_final[1] / 2 + sol.impact_times[2]
 
 
-ball_primal = jax.jit(lambda p: ball_loss(p, None))
-ball_fwd = jax.jit(jax.jacfwd(lambda p: ball_loss(p, None)))
+# (jacobian, value): one forward-mode program for jacfwd, the primal and central differences.
+ball_fwd = jax.jit(jax.jacfwd(with_value(lambda p: ball_loss(p, None)), has_aux=True))
 ball_rca = jax.jit(jax.grad(lambda p: ball_loss(p, RCA)))
+
+
+def ball_primal(p):
+    return ball_fwd(p)[1]
 
 
 def test_ball_grad_equals_jacfwd_closed_form_and_differences():
     p = jnp.asarray(BALL_P)
     exact = jax.grad(ball_loss_exact)(p)
-    reverse, forward = ball_rca(p), ball_fwd(p)
-    np.testing.assert_allclose(ball_primal(p), ball_loss_exact(p), rtol=EXACT)
+    reverse, (forward, value) = ball_rca(p), ball_fwd(p)
+    np.testing.assert_allclose(value, ball_loss_exact(p), rtol=EXACT)
     assert_close(reverse, forward, MODES)
     assert_close(reverse, exact, EXACT)
     assert_close(reverse, central_differences(ball_primal, BALL_P, FD_STEP), FD)
@@ -107,8 +128,8 @@ def test_ball_direct_adjoint_grad_and_jacfwd():
     loss = lambda q: ball_loss(q, DIRECT, DIRECT_STEPS)  # noqa: E731
     reverse = jax.jit(jax.grad(loss))(p)
     forward = jax.jit(jax.jacfwd(loss))(p)
-    assert_close(reverse, ball_fwd(p), MODES)
-    assert_close(forward, ball_fwd(p), MODES)
+    assert_close(reverse, ball_fwd(p)[0], MODES)
+    assert_close(forward, ball_fwd(p)[0], MODES)
 
 
 def test_ball_grad_under_vmap_and_jit():
@@ -183,10 +204,13 @@ def test_wall_saltation_reverse_forward_exact_differences():
     x0 = jnp.asarray(WALL_X0)
     exact = wall_jacobian_exact(WALL_X0, WALL_T)
     reverse = jax.jit(jax.jacrev(lambda x: wall_final(x, RCA)))(x0)
-    forward = jax.jit(jax.jacfwd(lambda x: wall_final(x, None)))(x0)
+    # (jacobian, value): the differences below run the same forward-mode program.
+    forward_and_value = jax.jit(jax.jacfwd(with_value(lambda x: wall_final(x, None)),
+                                           has_aux=True))
+    forward = forward_and_value(x0)[0]
     assert_close(reverse, forward, MODES)
     assert_close(reverse, exact, EXACT)
-    primal = jax.jit(lambda x: wall_final(x, None))
+    primal = lambda x: forward_and_value(x)[1]  # noqa: E731
     assert_close(reverse, central_differences(primal, WALL_X0, FD_STEP), FD)
 
 
@@ -226,9 +250,12 @@ def osc_loss(p, adjoint, max_steps=100_000):
 
 def test_forced_oscillator_grad_equals_jacfwd_and_differences():
     p = jnp.asarray(OSC_P)
-    primal = jax.jit(lambda q: osc_loss(q, None))
     reverse = jax.jit(jax.grad(lambda q: osc_loss(q, RCA)))(p)
-    forward = jax.jit(jax.jacfwd(lambda q: osc_loss(q, None)))(p)
+    # (jacobian, value): the differences below run the same forward-mode program.
+    forward_and_value = jax.jit(jax.jacfwd(with_value(lambda q: osc_loss(q, None)),
+                                           has_aux=True))
+    forward = forward_and_value(p)[0]
+    primal = lambda q: forward_and_value(q)[1]  # noqa: E731
     assert_close(reverse, forward, MODES)
     assert_close(reverse, central_differences(primal, OSC_P, FD_STEP), FD)
 
@@ -252,9 +279,11 @@ def test_grazing_near_impact():
         return 2 * x[0] / (-x[1] + jnp.sqrt(x[1] ** 2 - 2 * a * x[0]))
 
     x = jnp.asarray(x0)
-    np.testing.assert_allclose(first_time(x, None), t_hit, rtol=EXACT / abs(v_minus))
+    # (gradient, value) from one forward-mode program
+    forward, value = jax.jit(jax.jacfwd(with_value(lambda y: first_time(y, None)),
+                                        has_aux=True))(x)
+    np.testing.assert_allclose(value, t_hit, rtol=EXACT / abs(v_minus))
     reverse = jax.jit(jax.grad(lambda y: first_time(y, RCA)))(x)
-    forward = jax.jit(jax.jacfwd(lambda y: first_time(y, None)))(x)
     assert_close(reverse, forward, MODES / abs(v_minus))
     assert_close(reverse, jax.grad(exact)(x), EXACT / abs(v_minus))
 
@@ -285,13 +314,16 @@ def test_zeno_sticking_run():
         flights = jnp.cumsum(jnp.asarray([0.0] + [2 * w * e**k / g for k in range(1, 5)]))
         return jnp.sum((v0 + w) / g + flights)
 
+    def loss_and_aux(q):  # (value, (value, sol)): jacfwd's aux, from one forward-mode program
+        value, sol = loss(q, None)
+        return value, (value, sol)
+
     p = jnp.asarray(BALL_P)
-    (value, sol) = loss(p, None)
+    forward, (value, sol) = jax.jit(jax.jacfwd(loss_and_aux, has_aux=True))(p)
     kinds = np.asarray(sol.impact_kind[: int(sol.num_impacts)])
     assert int(gj.ImpactKind.STICK) in kinds, kinds
     np.testing.assert_allclose(value, exact(p), rtol=EXACT)
     reverse = jax.jit(jax.grad(lambda q: loss(q, RCA)[0]))(p)
-    forward = jax.jit(jax.jacfwd(lambda q: loss(q, None)[0]))(p)
     assert_close(reverse, forward, MODES)
     assert_close(reverse, jax.grad(exact)(p), EXACT)
 
@@ -427,7 +459,13 @@ def test_saved_states_grad_equals_jacfwd():
     """`saveat` in reverse mode: the saved states' gradient equals jacfwd's and central
     differences, for save times inside flights, at an impact's flight, at t0 and at t1
     (it was NaN: steps without saves evaluated the interpolant at s = -inf, and a zero
-    cotangent times an infinite partial is NaN), also under vmap."""
+    cotangent times an infinite partial is NaN), also under vmap. Four reverse-mode programs
+    (the default two levels, every step stored, `DirectAdjoint`, the default batched: each
+    a loop of its own); one forward-mode program gives jacfwd, the values the differences
+    take, and each lane's jacfwd (the batched gradient is compared lane by lane, relative
+    to the lane's own largest entry). Every step stored gives the default schedule's
+    gradient (the check `test_checkpoints_at_max_steps_mean_every_step` made with a program
+    of its own)."""
     ts = jnp.array([0.0, 0.5, 1.0, 1.6, BALL_T])
 
     def saved(q, adjoint, max_steps=100_000):
@@ -436,16 +474,23 @@ def test_saved_states_grad_equals_jacfwd():
         return jnp.sum(sol.xs * jnp.array([1.0, 0.5]))
 
     p = jnp.asarray(BALL_P)
-    forward = jax.jacfwd(lambda q: saved(q, None))(p)
+    forward_and_value = jax.jit(jax.jacfwd(with_value(lambda q: saved(q, None)), has_aux=True))
+    forward = forward_and_value(p)[0]
     assert np.all(np.isfinite(forward))
-    assert_close(forward, central_differences(lambda q: saved(q, None), BALL_P, FD_STEP), FD)
+    primal = lambda q: forward_and_value(q)[1]  # noqa: E731
+    assert_close(forward, central_differences(primal, BALL_P, FD_STEP), FD)
     every = diffrax.RecursiveCheckpointAdjoint(checkpoints=DIRECT_STEPS)
-    for adjoint, steps in ((RCA, 100_000), (every, DIRECT_STEPS), (DIRECT, DIRECT_STEPS)):
-        reverse = jax.grad(lambda q, a=adjoint, m=steps: saved(q, a, m))(p)
-        assert_close(reverse, forward, MODES)
+    reverse = {}
+    for name, adjoint, steps in (("default", RCA, 100_000), ("every step", every, DIRECT_STEPS),
+                                 ("direct", DIRECT, DIRECT_STEPS)):
+        reverse[name] = jax.jit(jax.grad(lambda q, a=adjoint, m=steps: saved(q, a, m)))(p)
+        assert_close(reverse[name], forward, MODES)
+    # every step stored: the default schedule's gradient (test_checkpoints_at_max_steps...)
+    assert_close(reverse["every step"], reverse["default"], MODES)
     ps = jnp.stack([p, p * jnp.array([1.1, 1.0, 1.0, 0.95])])
     batched = jax.jit(jax.vmap(jax.grad(lambda q: saved(q, RCA))))(ps)
-    assert_close(batched, jax.vmap(jax.jacfwd(lambda q: saved(q, None)))(ps), MODES)
+    for lane in range(2):
+        assert_close(batched[lane], forward_and_value(ps[lane])[0], MODES)
 
 
 def test_recomputed_steps_replay_the_first_pass():
@@ -481,7 +526,8 @@ def test_simultaneous_impacts_overflowing_the_log():
     """Two walls met at the same instant with room for one log row: the run ends
     MAX_IMPACTS, and reverse mode (whose log is a write-once buffer) gives jacfwd's
     gradient of the logged impact and the final state (the overflowing row is not written
-    twice)."""
+    twice). The status and the logged surface are those of the forward-mode loop (jacfwd's
+    aux) and of the reverse-mode loop (the gradient's aux): one program per mode."""
     def field(t, x, a):
         return jnp.stack([x[2], x[3], 0.0 * x[2], -a["g"] + 0.0 * x[3]])
 
@@ -499,26 +545,36 @@ def test_simultaneous_impacts_overflowing_the_log():
         return sol.impact_times[0] + jnp.sum(sol.impact_post[0]), sol
 
     p = jnp.asarray(np.append(x0, e))
-    _, sol = loss(p, None)
-    assert gj.Status(int(sol.status)) == gj.Status.MAX_IMPACTS
-    assert int(sol.impact_surface[0]) == 0  # the log keeps the first row (scene order)
-    forward = jax.jacfwd(lambda q: loss(q, None)[0])(p)
-    reverse = jax.grad(lambda q: loss(q, RCA)[0])(p)
+    forward, sol = jax.jit(jax.jacfwd(lambda q: loss(q, None), has_aux=True))(p)
+    (_, reverse_sol), reverse = jax.jit(
+        jax.value_and_grad(lambda q: loss(q, RCA), has_aux=True))(p)
+    for run in (sol, reverse_sol):
+        assert gj.Status(int(run.status)) == gj.Status.MAX_IMPACTS
+        assert int(run.impact_surface[0]) == 0  # the log keeps the first row (scene order)
     assert_close(reverse, forward, MODES)
 
 
 def test_checkpoints_at_max_steps_mean_every_step():
     """`checkpoints >= max_steps` stores every one of the loop's max_steps + 1 iterations
-    (see `_loop/reverse.py: checkpoint_count`), with the same gradient as the default schedule."""
+    (see `_loop/reverse.py: checkpoint_count`), with the same gradient as the default schedule.
+
+    That last comparison is made in `test_saved_states_grad_equals_jacfwd` (the ball with
+    `checkpoints=DIRECT_STEPS` and the default schedule, both programs built there, each
+    also compared with jacfwd): here it was a program of its own, the same loop
+    (`every_step_stored`, unbatched, the log not staged) without `saveat`. Here: the counts,
+    and a run that stops at MAX_STEPS against jacfwd.
+
+    The reverse-mode loop sees the adjoint's `checkpoints` only through `checkpoint_count`
+    (`_loop/runners.py: CheckpointedLoop.run`), so `checkpoints=6` and `checkpoints=100` at
+    `max_steps=6` build the same program: asserting that both count 7 and differentiating
+    one of them checks what differentiating both did (each was a program to build)."""
     from grazejax._loop.reverse import checkpoint_count
 
     assert checkpoint_count(None, 100) is None
     assert checkpoint_count(30, 100) == 30
     assert checkpoint_count(100, 100) == checkpoint_count(10**6, 100) == 101
+    assert checkpoint_count(6, 6) == checkpoint_count(100, 6) == 7
     p = jnp.asarray(BALL_P)
-    every_step = diffrax.RecursiveCheckpointAdjoint(checkpoints=DIRECT_STEPS)
-    reverse = jax.jit(jax.grad(lambda q: ball_loss(q, every_step, DIRECT_STEPS)))(p)
-    assert_close(reverse, ball_rca(p), MODES)
 
     # A run that stops at MAX_STEPS uses the loop's extra iteration, the one the count adds.
     def state_sum(q, adjoint):
@@ -526,11 +582,14 @@ def test_checkpoints_at_max_steps_mean_every_step():
                           max_steps=6, max_impacts=8, **TIGHT)
         return jnp.sum(sol.x_final), sol.status
 
-    assert int(state_sum(p, None)[1]) == gj.Status.MAX_STEPS
-    forward = jax.jacfwd(lambda q: state_sum(q, None)[0])(p)
-    for checkpoints in (6, 100):
-        adjoint = diffrax.RecursiveCheckpointAdjoint(checkpoints=checkpoints)
-        assert_close(jax.grad(lambda q, a=adjoint: state_sum(q, a)[0])(p), forward, MODES)
+    # (derivative, status) from one program per mode
+    forward, status = jax.jit(jax.jacfwd(lambda q: state_sum(q, None), has_aux=True))(p)
+    assert int(status) == gj.Status.MAX_STEPS
+    adjoint = diffrax.RecursiveCheckpointAdjoint(checkpoints=6)
+    (_, status), reverse = jax.jit(
+        jax.value_and_grad(lambda q: state_sum(q, adjoint), has_aux=True))(p)
+    assert int(status) == gj.Status.MAX_STEPS
+    assert_close(reverse, forward, MODES)
 
 
 # Both ways of storing every step in reverse mode: each step's linearisation (small
@@ -548,9 +607,10 @@ def stores(request, monkeypatch):
     return request.param
 
 
-# Forward-mode results (plain runs, jacfwd) do not depend on how reverse mode stores its
-# steps: each is computed for the first `stores` parameter and reused by the second, which
-# would otherwise trace and compile it again after `jax.clear_caches`.
+# Forward-mode results (jacfwd and the forward-mode loop's primal, its aux) do not depend on
+# how reverse mode stores its steps: each is computed for the first `stores` parameter and
+# reused by the second, which would otherwise trace and compile it again after
+# `jax.clear_caches`.
 _FORWARD_RESULTS = {}
 
 
@@ -560,12 +620,9 @@ def forward_once(key, compute):
     return _FORWARD_RESULTS[key]
 
 
-def test_every_step_checkpoints_with_the_log_staged(monkeypatch, stores):
-    """`checkpoints >= max_steps` with a log over 512 bytes: one loop, every step's
-    linearisation stored, the log staged (`every_step_stored`: the rows a step staged
-    move to the full log, a write-once buffer, after it). The same primal results as the
-    forward-mode loop, and jacfwd's gradients: plain impacts, MAX_STEPS, sliding
-    (STICK/RELEASE rows) and two rows from one landing (simultaneous impacts)."""
+def _spy_on_stage_log(monkeypatch):
+    """The rows of each call of `_loop/reverse.py`'s `stage_log` (made while a reverse-mode
+    loop that stages the log is traced: at a jitted program's first call)."""
     import grazejax._loop.reverse as reverse_module
 
     taken = []
@@ -573,77 +630,135 @@ def test_every_step_checkpoints_with_the_log_staged(monkeypatch, stores):
     monkeypatch.setattr(
         reverse_module, "stage_log", lambda c, rows: taken.append(rows) or original(c, rows)
     )
+    return taken
+
+
+_SOLUTION_FIELDS = ("t_final", "x_final", "num_impacts", "impact_times", "impact_pre",
+                    "impact_kind", "impact_surface", "status")
+
+
+def test_every_step_checkpoints_with_the_log_staged(monkeypatch, stores):
+    """`checkpoints >= max_steps` with a log over 512 bytes: one loop, every step's
+    linearisation stored, the log staged (`every_step_stored`: the rows a step staged
+    move to the full log, a write-once buffer, after it). The same primal results as the
+    forward-mode loop, and jacfwd's gradients: plain impacts, MAX_STEPS, sliding
+    (STICK/RELEASE rows) and two rows from one landing (simultaneous impacts).
+
+    What is compared, exactly (bit for bit): the loop without derivatives (the every-step
+    adjoint's run, `stored_while_loop`'s primal or Equinox's loop undifferentiated) against
+    a plain run of the forward-mode loop, as before; and, from the same programs as the
+    gradients (the Solution as aux), the primal of the run the gradient differentiates
+    (reverse mode's forward pass, with its extra block writes of the log,
+    `_loop/stored.py`) against jacfwd's primal. (The differentiated and the
+    undifferentiated runs differ in the last bits at the sliding run's rest state,
+    x ≈ 1e-16 against 1e-22, so each is compared with its own kind.) The ball's plain,
+    sliding and MAX_STEPS runs share their programs (`zeno="stick"`, `max_steps=150`; `t1`
+    and the parameters are inputs): to T = 2 the run has three plain impacts (10 steps);
+    to T = 6 it sticks after 64 impacts (136 steps, then no more); with e = 0.85 it still
+    bounces at step 150 (it would stick after 182), and stops at MAX_STEPS there. (They
+    were three programs: `zeno="stop"` with max_steps 60 and 6, `zeno="stick"` with 2000.)
+    Each reverse-mode program stages the log (`taken`, asserted where it is traced, at its
+    first call)."""
+    taken = _spy_on_stage_log(monkeypatch)
     p = jnp.asarray(BALL_P)
 
-    def ball(q, adjoint, max_steps, zeno="stop", t1=BALL_T):
+    def ball(q, t1, adjoint, max_steps, zeno):
         return gj.simulate(BALL, q[:2], 0.0, t1, {"g": q[2], "e": q[3]}, adjoint=adjoint,
-                           max_steps=max_steps, max_impacts=100, zeno=zeno, **TIGHT)
+                           max_steps=max_steps, max_impacts=100, zeno=zeno, direction=1,
+                           **TIGHT)
 
-    def walls(q, adjoint, max_steps):
+    def walls(q, t1, adjoint, max_steps):
         field = lambda t, x, a: jnp.stack([x[2], x[3], 0.0 * x[2], -a["g"] + 0.0 * x[3]])  # noqa: E731
         floor = gj.Surface(phi=lambda t, x, a: x[1], jump=lambda t, x, a: x.at[3].set(-a["e"] * x[3]))
         wall = gj.Surface(phi=lambda t, x, a: x[0], jump=lambda t, x, a: x.at[2].set(-a["e"] * x[2]))
-        return gj.simulate(gj.Scene(field, [floor, wall]), q[:4], 0.0, 0.8,
+        return gj.simulate(gj.Scene(field, [floor, wall]), q[:4], 0.0, t1,
                            {"g": 9.81, "e": q[4]}, adjoint=adjoint, max_steps=max_steps,
-                           max_impacts=40, **TIGHT)
+                           max_impacts=40, direction=1, **TIGHT)
 
-    runs = [  # (run, inputs, max_steps, status)
-        (ball, p, 60, gj.Status.SUCCESS),
-        (ball, p, 6, gj.Status.MAX_STEPS),
-        (functools.partial(ball, zeno="stick", t1=6.0), p, 2000, gj.Status.SUCCESS),
-        (walls, jnp.array([0.5, 9.81 * 0.5**2 / 2, -1.0, 0.0, 0.8]), 100, gj.Status.SUCCESS),
+    bouncier = p.at[3].set(0.85)
+    programs = [  # (run, max_steps, [(name, inputs, t1, status), ...])
+        (functools.partial(ball, zeno="stick"), 150,
+         [("plain", p, BALL_T, gj.Status.SUCCESS), ("sliding", p, 6.0, gj.Status.SUCCESS),
+          ("max steps", bouncier, 6.0, gj.Status.MAX_STEPS)]),
+        (walls, 100, [("simultaneous", jnp.array([0.5, 9.81 * 0.5**2 / 2, -1.0, 0.0, 0.8]),
+                       0.8, gj.Status.SUCCESS)]),
     ]
-    for case, (run, q, max_steps, status) in enumerate(runs):
+    for run, max_steps, ends in programs:
         every = diffrax.RecursiveCheckpointAdjoint(checkpoints=max_steps)
-        plain = forward_once(("staged plain", case), lambda r=run, q=q, m=max_steps: r(q, None, m))
-        taken.clear()
-        checkpointed = run(q, every, max_steps)
-        assert taken  # the staged every-step loop
-        assert gj.Status(int(plain.status)) == status
-        for field in ("t_final", "x_final", "num_impacts", "impact_times", "impact_pre",
-                      "impact_kind", "impact_surface", "status"):
-            np.testing.assert_array_equal(getattr(checkpointed, field), getattr(plain, field))
 
-        def loss(z, adjoint, run=run, max_steps=max_steps):
-            sol = run(z, adjoint, max_steps)
-            return jnp.nansum(sol.impact_times) + jnp.sum(sol.x_final)
+        def loss(z, t1, adjoint, run=run, max_steps=max_steps):
+            sol = run(z, t1, adjoint, max_steps)
+            return jnp.nansum(sol.impact_times) + jnp.sum(sol.x_final), sol
 
-        forward = forward_once(("staged jacfwd", case),
-                               lambda q=q, loss=loss: jax.jacfwd(lambda z: loss(z, None))(q))
-        assert_close(jax.grad(lambda z, every=every: loss(z, every))(q), forward, MODES)
+        jacfwd = jax.jit(jax.jacfwd(lambda z, t1, loss=loss: loss(z, t1, None), has_aux=True))
+        reverse = jax.jit(jax.value_and_grad(lambda z, t1, loss=loss, every=every:
+                                             loss(z, t1, every), has_aux=True))
+        for call, (name, q, t1, status) in enumerate(ends):
+            # (plain runs: one compiled program per run, `q` and `t1` among its inputs)
+            (jacobian, differentiated), plain = forward_once(
+                ("staged", name),
+                lambda jacfwd=jacfwd, run=run, q=q, t1=t1, m=max_steps: (
+                    jacfwd(q, t1), run(q, t1, None, m)))
+            assert gj.Status(int(plain.status)) == status
+            kinds = plain.impact_kind[: int(plain.num_impacts)]
+            # sliding: STICK rows; the others: plain impacts only (max steps: before sticking)
+            assert (int(gj.ImpactKind.STICK) in kinds) == (name == "sliding"), kinds
+            taken.clear()
+            checkpointed = run(q, t1, every, max_steps)
+            assert bool(taken) or call > 0  # the staged every-step loop (traced at call 0)
+            taken.clear()
+            (_, checkpointed_differentiated), gradient = reverse(q, t1)
+            assert bool(taken) or call > 0
+            for field in _SOLUTION_FIELDS:
+                np.testing.assert_array_equal(getattr(checkpointed, field),
+                                              getattr(plain, field))
+                np.testing.assert_array_equal(getattr(checkpointed_differentiated, field),
+                                              getattr(differentiated, field))
+            assert_close(gradient, jacobian, MODES)
 
 
 def test_default_checkpoints_two_levels(monkeypatch, stores):
     """`RecursiveCheckpointAdjoint()` runs two levels of loops, chunks of ~√max_steps
     steps that store their steps' linearisations (`two_level_checkpointed`; with a log over 512 bytes its
     outer iterations also end at each landing with rows, the log staged). Small `max_steps` so that chunks end inside flights: gradients equal
-    jacfwd's, also for runs that end at MAX_STEPS and at MAX_IMPACTS."""
-    import grazejax._loop.reverse as reverse_module
+    jacfwd's, also for runs that end at MAX_STEPS and at MAX_IMPACTS.
 
-    taken = []  # the staging log's rows, each time the loop stages the log
-    original = reverse_module.stage_log
-    monkeypatch.setattr(
-        reverse_module, "stage_log", lambda c, rows: taken.append(rows) or original(c, rows)
-    )
+    Two programs per `stores` parameter, the log staged or not, each run to two ends (`t1`
+    an input): to T = 2 the run takes 10 steps and 3 impacts (SUCCESS, chunks of 4 steps);
+    to T = 3 the staged program stops at MAX_STEPS (its 12 steps end at the fourth
+    landing, 2.214), to T = 2.5 the unstaged program's 4-row log fills at that landing
+    (MAX_IMPACTS). (These were four programs: max_steps = 6 for MAX_STEPS, max_impacts = 8
+    and 2 for the unstaged SUCCESS and MAX_IMPACTS; each end is reached the same way here.)
+    Both the forward-mode and the reverse-mode runs' statuses are checked."""
+    taken = _spy_on_stage_log(monkeypatch)  # the staging log's rows, each time it is traced
 
-    def loss(q, adjoint, max_steps, impacts):
-        sol = gj.simulate(BALL, q[:2], 0.0, BALL_T, {"g": q[2], "e": q[3]}, adjoint=adjoint,
-                          max_steps=max_steps, max_impacts=impacts, throw=False, **TIGHT)
+    def loss(q, t1, adjoint, max_steps, impacts):
+        sol = gj.simulate(BALL, q[:2], 0.0, t1, {"g": q[2], "e": q[3]}, adjoint=adjoint,
+                          max_steps=max_steps, max_impacts=impacts, direction=1, throw=False,
+                          **TIGHT)
         return sol.x_final[0] + sol.x_final[1] / 2 + jnp.nansum(sol.impact_times), sol.status
 
     p = jnp.asarray(BALL_P)
-    cases = [  # (max_steps, max_impacts, status, staged): the run takes 10 steps
-        (12, 100, gj.Status.SUCCESS, True),  # chunks of 4 steps; a 1600-byte log
-        (6, 100, gj.Status.MAX_STEPS, True),
-        (12, 8, gj.Status.SUCCESS, False),  # a 128-byte log: one level of loops
-        (12, 2, gj.Status.MAX_IMPACTS, False),
+    programs = [  # (max_steps, max_impacts, staged, [(t1, status), ...])
+        (12, 100, True,  # chunks of 4 steps; a 1600-byte log
+         [(BALL_T, gj.Status.SUCCESS), (3.0, gj.Status.MAX_STEPS)]),
+        (12, 4, False,  # a 64-byte log, not staged
+         [(BALL_T, gj.Status.SUCCESS), (2.5, gj.Status.MAX_IMPACTS)]),
     ]
-    for max_steps, impacts, status, staged in cases:
+    for max_steps, impacts, staged, ends in programs:
         bound = dict(max_steps=max_steps, impacts=impacts)
-        plain_status, forward = forward_once(("two levels", max_steps, impacts), lambda b=bound: (
-            loss(p, None, **b)[1], jax.jacfwd(lambda q: loss(q, None, **b)[0])(p)))
-        assert gj.Status(int(plain_status)) == status
-        taken.clear()  # (the forward-mode runs above stage their logs too)
-        reverse = jax.grad(lambda q, b=bound: loss(q, RCA, **b)[0])(p)
-        assert_close(reverse, forward, MODES)
-        assert bool(taken) == staged
+        forward = jax.jit(jax.jacfwd(lambda q, t1, b=bound: loss(q, t1, None, **b),
+                                     has_aux=True))
+        reverse = jax.jit(jax.value_and_grad(lambda q, t1, b=bound: loss(q, t1, RCA, **b),
+                                             has_aux=True))
+        for call, (t1, status) in enumerate(ends):
+            jacobian, plain_status = forward_once(
+                ("two levels", max_steps, impacts, t1),
+                lambda forward=forward, t1=t1: forward(p, t1))
+            assert gj.Status(int(plain_status)) == status
+            taken.clear()  # (the forward-mode runs above stage their logs too)
+            (_, reverse_status), gradient = reverse(p, t1)
+            if call == 0:  # traced at the first call only
+                assert bool(taken) == staged
+            assert gj.Status(int(reverse_status)) == status
+            assert_close(gradient, jacobian, MODES)
