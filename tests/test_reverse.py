@@ -23,7 +23,7 @@ wall), and with central finite differences.
 Compile time dominates (each new configuration of a reverse-mode run is a program of its
 own, tens of seconds to build): each (scene, mode) pair is compiled once and reused by every
 check that needs it. One forward-mode program gives both jacfwd and the value
-(`with_value`: the value as jacfwd's aux, the forward-mode loop's primal, which central
+(`jacfwd_and_value`: the value as jacfwd's aux, the forward-mode loop's primal, which central
 differences and closed forms are compared with), reverse-mode runs are jitted (a jitted
 gradient took ~20% less CPU to build than the same `jax.grad` run op by op), and runs that
 differ only in `t1` share one program (`t1` an input).
@@ -56,16 +56,16 @@ DIRECT = diffrax.DirectAdjoint()
 DIRECT_STEPS = 4000
 
 
-def with_value(f):
-    """`f` returning `(value, value)`: `jax.jacfwd(with_value(f), has_aux=True)` gives
-    `(jacobian, value)` from one forward-mode program, where a separate primal run would be
-    another program to compile."""
+def jacfwd_and_value(f):
+    """`jit(jacfwd(f))` that also returns `f`'s value (as jacfwd's aux): `(jacobian, value)`
+    from one forward-mode program, where a separate primal run would be another program to
+    compile."""
 
     def both(*args):
         value = f(*args)
         return value, value
 
-    return both
+    return jax.jit(jax.jacfwd(both, has_aux=True))
 
 
 def assert_close(actual, expected, rtol):
@@ -104,7 +104,7 @@ def ball_loss(p, adjoint, max_steps=100_000):
 
 
 # (jacobian, value): one forward-mode program for jacfwd, the primal and central differences.
-ball_fwd = jax.jit(jax.jacfwd(with_value(lambda p: ball_loss(p, None)), has_aux=True))
+ball_fwd = jacfwd_and_value(lambda p: ball_loss(p, None))
 ball_rca = jax.jit(jax.grad(lambda p: ball_loss(p, RCA)))
 
 
@@ -205,8 +205,7 @@ def test_wall_saltation_reverse_forward_exact_differences():
     exact = wall_jacobian_exact(WALL_X0, WALL_T)
     reverse = jax.jit(jax.jacrev(lambda x: wall_final(x, RCA)))(x0)
     # (jacobian, value): the differences below run the same forward-mode program.
-    forward_and_value = jax.jit(jax.jacfwd(with_value(lambda x: wall_final(x, None)),
-                                           has_aux=True))
+    forward_and_value = jacfwd_and_value(lambda x: wall_final(x, None))
     forward = forward_and_value(x0)[0]
     assert_close(reverse, forward, MODES)
     assert_close(reverse, exact, EXACT)
@@ -252,8 +251,7 @@ def test_forced_oscillator_grad_equals_jacfwd_and_differences():
     p = jnp.asarray(OSC_P)
     reverse = jax.jit(jax.grad(lambda q: osc_loss(q, RCA)))(p)
     # (jacobian, value): the differences below run the same forward-mode program.
-    forward_and_value = jax.jit(jax.jacfwd(with_value(lambda q: osc_loss(q, None)),
-                                           has_aux=True))
+    forward_and_value = jacfwd_and_value(lambda q: osc_loss(q, None))
     forward = forward_and_value(p)[0]
     primal = lambda q: forward_and_value(q)[1]  # noqa: E731
     assert_close(reverse, forward, MODES)
@@ -280,8 +278,7 @@ def test_grazing_near_impact():
 
     x = jnp.asarray(x0)
     # (gradient, value) from one forward-mode program
-    forward, value = jax.jit(jax.jacfwd(with_value(lambda y: first_time(y, None)),
-                                        has_aux=True))(x)
+    forward, value = jacfwd_and_value(lambda y: first_time(y, None))(x)
     np.testing.assert_allclose(value, t_hit, rtol=EXACT / abs(v_minus))
     reverse = jax.jit(jax.grad(lambda y: first_time(y, RCA)))(x)
     assert_close(reverse, forward, MODES / abs(v_minus))
@@ -474,7 +471,7 @@ def test_saved_states_grad_equals_jacfwd():
         return jnp.sum(sol.xs * jnp.array([1.0, 0.5]))
 
     p = jnp.asarray(BALL_P)
-    forward_and_value = jax.jit(jax.jacfwd(with_value(lambda q: saved(q, None)), has_aux=True))
+    forward_and_value = jacfwd_and_value(lambda q: saved(q, None))
     forward = forward_and_value(p)[0]
     assert np.all(np.isfinite(forward))
     primal = lambda q: forward_and_value(q)[1]  # noqa: E731
