@@ -161,7 +161,10 @@ def simulate(
     the direction in which the surface's jump law applies its impulses: (DJ − I)∇ₓΦ̇,
     minus its component along ∇ₓΦ (the least-norm ∇ₓΦ̇ direction if the jump law has
     no impulse there). ∇ₓΦ·d = 0 keeps Φ̇ unchanged and λ makes d(Φ̇)/dt = 0, so M is
-    invariant. For a mechanical system x = (q, v), Φ = Φ(t, q), with a restitution law,
+    invariant; numerically it holds only to the solver's truncation error and rounding, so
+    every sliding step's end state is projected onto M (as at the start of sliding) and the
+    state does not drift off the contact over long runs. For a mechanical system
+    x = (q, v), Φ = Φ(t, q), with a restitution law,
     d = (0, n): the normal contact force on the velocities, which holds while the free
     flow pushes into the surface (Φ̈ < 0). Sliding starts at the impact where Zeno is detected (the skipped
     tail is at most `zeno_rtol·t` long; the state is projected onto M, removing the

@@ -51,8 +51,9 @@ class AbstractZenoPolicy(eqx.Module):
         `(restart, zeno, intervals, zeno_time, stick, x_post, event_row)`, `event_row` a
         log row (a start or end of sliding) or None."""
 
-    def solver_step(self, ctx: "LoopContext", c: "LoopState", step_with, slides: bool):
-        """The solver's step, `step_with(term)`, in the field the lanes' phases call for."""
+    def solver_step(self, ctx: "LoopContext", c: "LoopState", step_with, slides: bool, sb):
+        """The solver's step to local time `sb`, `step_with(term)`, in the field the lanes'
+        phases call for."""
         return step_with(ctx.free_term)
 
     def find_release(self, ctx: "LoopContext", c: "LoopState", sa, sb, y1, y_of, detecting):
@@ -124,16 +125,20 @@ class ZenoStick(AbstractZenoPolicy):
         )
         return restart, zeno, intervals, zeno_time, stick, x_post, event_row
 
-    def solver_step(self, ctx, c, step_with, slides):
+    def solver_step(self, ctx, c, step_with, slides, sb):
         if not slides:
             return step_with(ctx.free_term)
+
+        def sliding_step():
+            y1, *rest = step_with(ctx.term)
+            return (hold_on_contact(ctx, c, sb, y1), *rest)
+
         # The sliding field only while some lane slides: decided once per step, not per
         # stage (the field's own `cond`, evaluated in each of the 6–13 stages, made
         # zeno="stick" cost half as much again in runs that never slide). The free
         # field is the sliding field's no-lane-slides branch: results are unchanged.
         return lax.cond(
-            eqxi.unvmap_any(jnp.any(c.stick)),
-            lambda: step_with(ctx.term), lambda: step_with(ctx.free_term),
+            eqxi.unvmap_any(jnp.any(c.stick)), sliding_step, lambda: step_with(ctx.free_term),
         )
 
     def find_release(self, ctx, c, sa, sb, y1, y_of, detecting):
@@ -208,6 +213,23 @@ def sliding_field(vector_field, pieces, t, y, args_, stick, free):
         return out
 
     return if_any_lane(jnp.any(stick), constrained, free)
+
+
+def hold_on_contact(ctx: "LoopContext", c: "LoopState", sb, y1):
+    """A sliding lane's step end moved back onto its contact manifold M = {Φ = 0, Φ̇ = 0}.
+
+    The sliding field holds Φ̈ = 0 only up to the step's truncation error and rounding
+    (f + λd cancels the normal acceleration in floating point, and how it rounds depends
+    on how XLA fuses it), so an uncorrected sliding state drifts off M, like t² from a
+    constant residual: a ball resting on its floor sinks into it. Projected at every step
+    end (the projection `stick_at_start` uses), the drift stays at one step's error. On M
+    the projection's derivative is the projector onto M's tangent space, which the
+    sliding flow's tangents already lie in: derivatives are unchanged to first order."""
+    t = ctx.abs_time(sb, c.t_hi, c.t_lo)
+    y_on = y1
+    for i, piece in enumerate(ctx.pieces):
+        y_on = jnp.where(c.stick[i], ctx.project_onto_contact(piece, t, y1, c.args), y_on)
+    return y_on
 
 
 def stick_at_start(ctx: "LoopContext", x0, args, stuck0, status0, zeno_time0, log):

@@ -53,7 +53,7 @@ def take_step(ctx: LoopContext, c: LoopState, slides: bool = True, forced=None,
     def step_with(term):
         return solver.step(term, sa, sb, c.y, targs, c.solver_state, c.made_jump)
 
-    y1, y_error, dense_info, solver_state1, _ = ctx.policy.solver_step(ctx, c, step_with, slides)
+    y1, y_error, dense_info, solver_state1, _ = ctx.policy.solver_step(ctx, c, step_with, slides, sb)
     # A NaN error estimate must reject the step, not poison the controller (diffrax #143).
     y_error = error_or_zero(y_error, y1)
     y_error = jnp.where(jnp.isnan(y_error), jnp.inf, y_error)

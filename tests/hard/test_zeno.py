@@ -364,6 +364,21 @@ def test_ball_at_rest_on_the_floor():
     assert np.max(np.abs(np.asarray(bounce.x_final))) <= 1e-12
 
 
+def test_a_ball_at_rest_stays_on_its_floor_over_long_horizons():
+    """The sliding field f + λd cancels the normal acceleration only to rounding, so an
+    uncorrected sliding state drifts off the contact like t²: with `simulate` outside
+    `jit` (XLA's quicker emitters round the cancellation differently from a user's `jit`)
+    a ball resting on its floor sank 2.2e-8 into it by t = 1e4, and a ball that bounced
+    to rest 2.2e-6 by t = 1e5, with SUCCESS. Every sliding step now ends on the contact
+    manifold {Φ = 0, Φ̇ = 0} (`_loop/policies.py: hold_on_contact`)."""
+    args, ball = f64_args(g=9.81, e=0.5), ex.bouncing_ball()
+    for x0, t1 in (([0.0, 0.0], 1e4), ([1.0, 0.0], 1e5)):  # (one program: t1 is an input)
+        sol = gj.simulate(ball, f64(x0), 0.0, t1, args, rtol=1e-10, atol=1e-10,
+                          max_impacts=500, zeno="stick")
+        assert status(sol) == gj.Status.SUCCESS and _kinds(sol)[-1] == gj.ImpactKind.STICK
+        assert np.max(np.abs(np.asarray(sol.x_final))) <= EPS, (x0, t1, sol.x_final)
+
+
 def test_release_time_and_landing_are_differentiable():
     """jacfwd through sliding and release: d(release time)/d(v0) and d(next impact time)/d(v0)
     of the loop particle against central differences of the pendulum reference (the
