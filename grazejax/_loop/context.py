@@ -103,8 +103,14 @@ class LoopContext(eqx.Module):
     def contact_geometry(self, piece, t, y, args_):
         return contact_frame(piece.gap, piece.jump, self.vector_field, t, y, args_)
 
-    def project_onto_contact(self, piece, t, y, args_):
-        return project_to_contact(piece.gap, piece.jump, self.vector_field, t, y, args_)
+    def project_onto_contacts(self, on, t, y, args_):
+        """`y` projected onto the contact manifold {Φ = 0, Φ̇ = 0} of the surface `on`
+        marks (`y` itself where it marks none)."""
+        out = y
+        for i, piece in enumerate(self.pieces):
+            on_m = project_to_contact(piece.gap, piece.jump, self.vector_field, t, y, args_)
+            out = jnp.where(on[i], on_m, out)
+        return out
 
     def gap_along(self, piece, sign, s_to_y, t_hi, t_lo, args_):
         def g(s):

@@ -225,11 +225,7 @@ def hold_on_contact(ctx: "LoopContext", c: "LoopState", sb, y1):
     end (the projection `stick_at_start` uses), the drift stays at one step's error. On M
     the projection's derivative is the projector onto M's tangent space, which the
     sliding flow's tangents already lie in: derivatives are unchanged to first order."""
-    t = ctx.abs_time(sb, c.t_hi, c.t_lo)
-    y_on = y1
-    for i, piece in enumerate(ctx.pieces):
-        y_on = jnp.where(c.stick[i], ctx.project_onto_contact(piece, t, y1, c.args), y_on)
-    return y_on
+    return ctx.project_onto_contacts(c.stick, ctx.abs_time(sb, c.t_hi, c.t_lo), y1, c.args)
 
 
 def stick_at_start(ctx: "LoopContext", x0, args, stuck0, status0, zeno_time0, log):
@@ -239,9 +235,7 @@ def stick_at_start(ctx: "LoopContext", x0, args, stuck0, status0, zeno_time0, lo
     stuck_any = jnp.any(stuck0)
     starts = stuck_any & (jnp.sum(stuck0) == 1)
     stick0 = stuck0 & starts
-    x_on = x0
-    for i, piece in enumerate(ctx.pieces):
-        x_on = jnp.where(stick0[i], ctx.project_onto_contact(piece, t0, x0, args), x_on)
+    x_on = ctx.project_onto_contacts(stick0, t0, x0, args)
     log = write_log(log, 0, starts, t0, x0, x_on, jnp.argmax(stick0), int(ImpactKind.STICK))
     num_impacts0 = starts.astype(jnp.array(0).dtype)
     status0 = jnp.where(stuck_any & ~starts, int(Status.ZENO), status0)
@@ -363,14 +357,9 @@ def start_or_end_sliding(
     stick = jnp.where(starts, want, jnp.where(lands & (c.releasing | applied_any), False, c.stick))
     moves = (starts & want) | released
 
-    def projected():
-        x_moved = x_post
-        for i, piece in enumerate(ctx.pieces):
-            on_m = ctx.project_onto_contact(piece, t_event, x_post, args_)
-            x_moved = jnp.where(moves[i], on_m, x_moved)
-        return x_moved
-
-    x_moved = if_any_lane(jnp.any(moves), projected, x_post)
+    x_moved = if_any_lane(
+        jnp.any(moves), lambda: ctx.project_onto_contacts(moves, t_event, x_post, args_), x_post
+    )
     event_row = (
         starts | jnp.any(released), x_post, x_moved,
         jnp.argmax(want | released),
