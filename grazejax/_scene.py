@@ -85,6 +85,15 @@ class Scene(eqx.Module):
       systems ignore `t`).
     - `surfaces`: a sequence of [`grazejax.Surface`][] pieces. Their order is the order in
       which simultaneous impacts (within round-off of each other) are applied.
+    - `project`: optional `project(t, x, args) -> x`, applied to the end state of every
+      solver step: a map back onto an invariant manifold of the flow (a constraint, a
+      conserved quantity) that the solver keeps only to its tolerance, so that the error
+      stays at one step's instead of growing with the time run. It must be the identity on
+      the manifold and smooth near it (derivatives pass through it: on the manifold its
+      Jacobian projects onto the tangent space, where the flow's tangents already lie).
+      E.g. one Gauss–Newton step onto {g = 0}: x − g(x)∇g(x)/|∇g(x)|². States saved
+      between step ends (`saveat`) come from the step's dense output, one step's error off
+      the manifold at most. A [`grazejax.PiecewiseScene`][] sets it for its sliding modes.
 
     A scene is static structure: it is hashable, and `jax.jit` treats it as a compile-time
     constant. Keep numbers in `args`.
@@ -92,14 +101,19 @@ class Scene(eqx.Module):
 
     vector_field: VectorField = eqx.field(static=True)
     surfaces: tuple[Surface, ...] = eqx.field(static=True)
+    project: VectorField | None = eqx.field(static=True, default=None)
 
-    def __init__(self, vector_field: VectorField, surfaces: Sequence[Surface] = ()):
+    def __init__(self, vector_field: VectorField, surfaces: Sequence[Surface] = (), *,
+                 project: VectorField | None = None):
         self.vector_field = vector_field
         self.surfaces = tuple(surfaces)
+        self.project = project
 
     def __check_init__(self):
         if not callable(self.vector_field):
             raise TypeError("Scene.vector_field must be callable (t, x, args) -> dx/dt")
+        if self.project is not None and not callable(self.project):
+            raise TypeError("Scene.project must be callable (t, x, args) -> x, or None")
         for i, surface in enumerate(self.surfaces):
             if not isinstance(surface, Surface):
                 raise TypeError(

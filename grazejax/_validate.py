@@ -215,6 +215,13 @@ def _check_scene_shapes(scene: Scene, x0, t0, args):
         raise ValueError(
             f"vector_field(t, x, args) must return shape {n} like x, got {getattr(out, 'shape', type(out))}"
         )
+    if scene.project is not None:
+        out = shape_of(scene.project, "project(t, x, args)")
+        if getattr(out, "shape", None) != n:
+            raise ValueError(
+                f"project(t, x, args) must return a state of shape {n}, got "
+                f"{getattr(out, 'shape', type(out))}"
+            )
     for i, surface in enumerate(scene.surfaces):
         label = scene.surface_name(i)
         out = shape_of(surface.phi, f"surface {label}: phi(t, x, args)")

@@ -82,6 +82,14 @@ def test_scene_functions_must_be_callable():
         gj.Surface(phi=1.0, jump=lambda t, x, a: x)
     with pytest.raises(TypeError, match="Surface"):
         gj.Scene(field, [lambda t, x, a: x[0]])
+    with pytest.raises(TypeError, match="project must be callable"):
+        gj.Scene(field, [surface()], project=1.0)
+
+
+def test_project_must_keep_shape():
+    scene = gj.Scene(field, [surface()], project=lambda t, x, a: x[:1])
+    with pytest.raises(ValueError, match="project.*shape"):
+        gj.simulate(scene, [1.0, 0.0], 0.0, 1.0)
 
 
 def test_traced_times_need_direction():

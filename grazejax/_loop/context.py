@@ -25,6 +25,7 @@ class LoopContext(eqx.Module):
     """The static data of one configuration of the loop, shared by all its phases."""
 
     vector_field: VectorField  # f, in the scene's own time
+    project: VectorField | None  # the scene's map back onto its invariant manifold, or None
     pieces: tuple[Piece, ...]  # the surfaces as the loop sees them (images when backward)
     impact_kinds: tuple[ImpactKind, ImpactKind, ImpactKind]  # α, β, γ (or α′, β′, γ′)
     sigma: int  # +1 forward, -1 backward

@@ -139,7 +139,7 @@ def build_context(
         policy = ZenoStop()
     term = diffrax.ODETerm(loop_field(f, pieces, sigma, policy.slides))
     return LoopContext(
-        vector_field=f, pieces=pieces, impact_kinds=impact_kinds, sigma=sigma,
+        vector_field=f, project=scene.project, pieces=pieces, impact_kinds=impact_kinds, sigma=sigma,
         t0=checked.t0, t1=checked.t1, ts=checked.ts, dtype=dtype, n=checked.x0.shape[0],
         m=m, max_signs=max((len(p.signs) for p in pieces), default=1),
         eps=jnp.finfo(dtype).eps,

@@ -54,6 +54,9 @@ def take_step(ctx: LoopContext, c: LoopState, slides: bool = True, forced=None,
         return solver.step(term, sa, sb, c.y, targs, c.solver_state, c.made_jump)
 
     y1, y_error, dense_info, solver_state1, _ = ctx.policy.solver_step(ctx, c, step_with, slides, sb)
+    if ctx.project is not None:  # the scene's map back onto its invariant manifold
+        t1_abs = ctx.abs_time(sb, c.t_hi, c.t_lo)
+        y1 = jnp.asarray(ctx.project(t1_abs, y1, c.args), y1.dtype)
     # A NaN error estimate must reject the step, not poison the controller (diffrax #143).
     y_error = error_or_zero(y_error, y1)
     y_error = jnp.where(jnp.isnan(y_error), jnp.inf, y_error)

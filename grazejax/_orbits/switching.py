@@ -244,7 +244,8 @@ def impacting_family(fam, located, end, args_of, t0, T_fixed, fixed, arrival, ds
         return None
     scene = fam.pmap.scene
     surface = scene.surfaces[graze.surface]
-    free = dataclasses.replace(fam.pmap, scene=Scene(scene.vector_field, ()), max_impacts=1)
+    free_scene = Scene(scene.vector_field, (), project=scene.project)
+    free = dataclasses.replace(fam.pmap, scene=free_scene, max_impacts=1)
     Y_end = np.asarray(end.Y)
     T0 = float(T_fixed) if fixed else float(Y_end[0])
     mu_star = float(graze.mu)
