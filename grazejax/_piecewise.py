@@ -408,7 +408,7 @@ def _onto_sliding_surface(slides):
     def project(t, y, args):
         sliding = functools.reduce(jnp.logical_or, [y[-1] == k for k, _ in slides])
         # A single run computes it only while it slides: inline, XLA fuses a copy of it
-        # into each of the step end's consumers (+15 % on a run that rarely slides).
+        # into each consumer of the step's end state, and every step pays for it.
         return jax.lax.cond(sliding, onto_surface, lambda t, y, args: y, t, y, args)
 
     return project
