@@ -13,7 +13,8 @@ analysis calls one, to the same floor.
 - `newton_inverse`, `inverse_jump`: J⁻¹ by Newton's method with an implicit-function JVP
   (NaN on failure), or the surface's own `inverse_jump`; `inverse_jump` also says whether it
   succeeded.
-- `project_to_surface`: a point moved onto Φ = 0 by minimum-norm Newton steps.
+- `project_to_surface`: a point moved onto Φ = 0 by minimum-norm Newton steps
+  (`newton_step_to_surface`: one of them).
 - `on_surface`, `on_piece`: is a given point on Φ = 0 (to within the floor, or a stated
   multiple of it), on the piece, on its boundary, and is it tangential there?
 - `Piece`, `forward_piece`, `backward_piece`: a surface as the loop sees it (Γ_i forward,
@@ -167,15 +168,17 @@ def on_surface(gap, t, x, args, slack=1.0):
     return jnp.abs(gap(t, x, args)) <= slack * gap_floor(gap, t, x, args, analysis_scale(x))
 
 
+def newton_step_to_surface(gap, t, x, args):
+    """One minimum-norm Newton step of x towards Φ(t, ·) = 0, x − Φ∇Φ/|∇Φ|² (none where
+    ∇Φ = 0)."""
+    g, grad = jax.value_and_grad(gap, argnums=1)(t, x, args)
+    norm2 = grad @ grad
+    return x - safe_divide(g, norm2, norm2 > 0) * grad
+
+
 def project_to_surface(gap, t, x, args, iterations: int = 60):
     """x moved onto Φ(t, ·) = 0 by minimum-norm Newton steps along ∇Φ (none where ∇Φ = 0)."""
-
-    def step(_, x_):
-        g, grad = jax.value_and_grad(gap, argnums=1)(t, x_, args)
-        norm2 = grad @ grad
-        return x_ - safe_divide(g, norm2, norm2 > 0) * grad
-
-    return lax.fori_loop(0, iterations, step, x)
+    return lax.fori_loop(0, iterations, lambda _, x_: newton_step_to_surface(gap, t, x_, args), x)
 
 
 # A given point is on ∂Γ if `where` changes within this relative distance of it.

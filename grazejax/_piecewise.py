@@ -22,7 +22,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._geometry import on_surface
+from ._geometry import newton_step_to_surface, on_surface
 from ._scene import Scene, Surface
 from ._simulate import simulate
 
@@ -397,12 +397,7 @@ def _onto_sliding_surface(slides):
         x, m = y[:-1], y[-1]
         out = x
         for k, phi in slides:
-            g, grad = jax.value_and_grad(lambda z, phi=phi: phi(t, z, args))(x)
-            norm2 = jnp.sum(grad * grad)
-            # (a lane in another mode may sit where ∇Φ = 0: keep it finite)
-            on = (m == k) & (norm2 > 0)
-            step = g / jnp.where(on, norm2, jnp.ones_like(norm2))
-            out = jnp.where(on, x - step * grad, out)
+            out = jnp.where(m == k, newton_step_to_surface(phi, t, x, args), out)
         return jnp.concatenate([out, y[-1:]])
 
     def project(t, y, args):
