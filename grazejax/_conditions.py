@@ -803,8 +803,8 @@ def _flights(scene: Scene, i: int, ts, xs, args, horizon):
     """Free flights from (t, x): forward until Γ_i is met (its time, status, saved states)
     and backward to the horizon (status, saved states). No jump is applied."""
     surface = scene.surfaces[i]
-    probe = Scene(scene.vector_field, [surface.probe()], project=scene.project)
-    free = Scene(scene.vector_field, [], project=scene.project)
+    probe = scene.with_surfaces([surface.probe()])
+    free = scene.with_surfaces([])
     fractions = jnp.linspace(0.0, 1.0, _SAVES + 1)[1:]
 
     def one(t, x):

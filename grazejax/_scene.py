@@ -120,6 +120,11 @@ class Scene(eqx.Module):
                     f"Scene.surfaces[{i}] is a {type(surface).__name__}, not a Surface"
                 )
 
+    def with_surfaces(self, surfaces: Sequence[Surface]) -> "Scene":
+        """This scene's flow (its field and `project`) with other surfaces: the scenes the
+        analyses derive (a probe of one surface, the free flow, all but a grazed one)."""
+        return Scene(self.vector_field, surfaces, project=self.project)
+
     def surface_name(self, index: int) -> str:
         name = self.surfaces[index].name
         return name if name is not None else f"Γ{index + 1}"

@@ -99,7 +99,7 @@ def _meet(scene: Scene, i: int, t, x, args, lookback: float, horizon, kw):
     surface = scene.surfaces[i]
     # Only Γ_i, and a jump that changes nothing: the run stops (max_impacts=1) exactly at
     # the first contact, with simulate's IFT tangent of the contact time.
-    probe = Scene(scene.vector_field, [surface.probe()], project=scene.project)
+    probe = scene.with_surfaces([surface.probe()])
     if lookback > 0:
         # Search from t − lookback: the meeting may lie before t (a neighbour already past
         # Γ_i), and a run never impacts at its start time, so a point *on* Γ_i needs a

@@ -232,8 +232,7 @@ def _system_for(scene, surface, args_of, period_of, fixed, newton_tol, scale, ma
     # The same surfaces minus the grazed one: a Scene hashes by its fields, so repeated
     # calls rebuild an equal scene and reuse the compiled programs.
     others = [s for i, s in enumerate(scene.surfaces) if i != surface]
-    pmap = PeriodMap(scene=Scene(scene.vector_field, others, project=scene.project),
-                     end_impacts=0, **kw)
+    pmap = PeriodMap(scene=scene.with_surfaces(others), end_impacts=0, **kw)
     return _GrazingSystem(
         pmap=pmap, phi=scene.surfaces[surface].phi, args_of=args_of, period_of=period_of,
         fixed_period=fixed, root_finder=newton_for(newton_tol, scale),

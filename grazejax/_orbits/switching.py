@@ -13,7 +13,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._scene import Scene
 from .branch import GrazingPoint, SpecialPoint
 from .contacts import orbit_contacts
 from .family import (
@@ -244,8 +243,7 @@ def impacting_family(fam, located, end, args_of, t0, T_fixed, fixed, arrival, ds
         return None
     scene = fam.pmap.scene
     surface = scene.surfaces[graze.surface]
-    free_scene = Scene(scene.vector_field, (), project=scene.project)
-    free = dataclasses.replace(fam.pmap, scene=free_scene, max_impacts=1)
+    free = dataclasses.replace(fam.pmap, scene=scene.with_surfaces(()), max_impacts=1)
     Y_end = np.asarray(end.Y)
     T0 = float(T_fixed) if fixed else float(Y_end[0])
     mu_star = float(graze.mu)
