@@ -1,6 +1,6 @@
 """A Taylor method in JAX, measured: is it a way to single runs near heyoka's?
 
-    python benchmarks/bench_taylor.py [--quick] [--out DIR]   (default DIR: results/)
+    python benchmarks/bench_taylor.py [--quick | --smoke] [--out DIR]   (default DIR: results/)
 
 Issue 43 asks for one run within 5× heyoka's scalar loop, and names a Taylor method built on
 `jax.experimental.jet` as worth a measured try. This script measures the flight alone (no
@@ -20,7 +20,8 @@ one process, one thing at a time, interleaved rounds, min CPU-clock wall time pe
 
 The error is the max-norm distance of x(62) from heyoka's in 80-bit long double at tol
 1e-19. Compile time is the first call's wall time minus a later call's. Writes
-DIR/taylor.json and DIR/taylor.md.
+DIR/taylor.json and DIR/taylor.md. `--quick`: tol 1e-10 only; `--smoke` (the tests): tol
+1e-8, heyoka, `jet` and Dopri8 only, one round.
 """
 
 from __future__ import annotations
@@ -154,11 +155,12 @@ def measure(runs: dict, x0, repeats: int) -> dict:
 
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--quick", action="store_true", help="tolerances 1e-10 only, fewer rounds")
+    parser.add_argument("--quick", action="store_true", help="tolerance 1e-10 only, fewer rounds")
+    parser.add_argument("--smoke", action="store_true", help="tolerance 1e-8, three methods, one round")
     parser.add_argument("--out", default=str(Path(__file__).parent / "results"))
     opts = parser.parse_args(argv)
-    tols = (1e-10,) if opts.quick else (1e-8, 1e-10, 1e-12)
-    repeats = 3 if opts.quick else 8
+    tols = (1e-8,) if opts.smoke else (1e-10,) if opts.quick else (1e-8, 1e-10, 1e-12)
+    repeats = 1 if opts.smoke else 3 if opts.quick else 8
     x0 = jnp.array(X0)
     truth = heyoka_run(1e-19, np.longdouble)(X0)[0]
     rows = []
@@ -172,6 +174,8 @@ def main(argv=None) -> None:
             "grazejax Dopri8": grazejax_run(diffrax.Dopri8(), tol),
             "grazejax Vern9": grazejax_run(gj.Vern9(), tol),
         }
+        if opts.smoke:
+            runs = {name: runs[name] for name in ("heyoka", "jet", "Dopri8")}
         results = measure(runs, x0, repeats)
         base = results["heyoka"]["run_s"]
         for name, r in results.items():
@@ -198,6 +202,7 @@ def main(argv=None) -> None:
                      f"{r['run_us']:.1f} | {r['us_per_step']:.2f} | {r['vs_heyoka']:.1f} | {compile_s} |")
     (out / "taylor.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
+    return rows
 
 
 if __name__ == "__main__":

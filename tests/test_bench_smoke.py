@@ -285,3 +285,24 @@ def test_revisions_benchmark_smoke(tmp_path):
     table = (tmp_path / "revisions.md").read_text()
     assert table.splitlines()[0] == "| case | `.` |"
     assert f"| sweep 8 in phase | {run['sweep 8 in phase']:.1f} |" in table
+
+
+# ---------------------------------------------------------------- bench_taylor --------
+
+
+@needs_heyoka
+def test_taylor_benchmark_smoke(tmp_path):
+    """benchmarks/bench_taylor.py --smoke: the `jet` Taylor method chooses its order and
+    steps as heyoka does, so it takes heyoka's steps and ends at heyoka's error; the table
+    and the JSON are written."""
+    bench_taylor = _benchmark_module("bench_taylor")
+    rows = {r["method"]: r for r in bench_taylor.main(["--smoke", "--out", str(tmp_path)])}
+    assert set(rows) == {"heyoka", "jet", "Dopri8"}
+    heyoka, taylor = rows["heyoka"], rows["jet"]
+    assert taylor["order"] == heyoka["order"] == 11
+    assert abs(taylor["steps"] - heyoka["steps"]) <= 1
+    assert taylor["error"] == pytest.approx(heyoka["error"], rel=0.1)
+    assert heyoka["error"] < 1e-8
+    saved = _strict((tmp_path / "taylor.json").read_text())["rows"]
+    assert [r["method"] for r in saved] == ["heyoka", "jet", "Dopri8"]
+    assert f"| 1e-08 | jet | 11 | {taylor['steps']} |" in (tmp_path / "taylor.md").read_text()
