@@ -6,7 +6,7 @@ Issue 43 asks for one run within 5× heyoka's scalar loop, and names a Taylor me
 `jax.experimental.jet` as worth a measured try. This script measures the flight alone (no
 surface: the solvers, not the impact loop), one trajectory of ex1dof's field at μ = 0.2
 from the impacting cycle's post-impact state (0, 0.0384224) over t ∈ [0, 62] (ten periods),
-one process, one thing at a time, interleaved rounds, min CPU-clock wall time per run:
+one process, one thing at a time, interleaved rounds, min wall time per run:
 
 - `heyoka`: `taylor_adaptive` (scalar, double), `propagate_until`, at `tol`;
 - `jet`: a Taylor method for any field, written with `jax.experimental.jet`: the solution's
@@ -131,13 +131,18 @@ def heyoka_run(tol, fp_type=float):
 
 
 def measure(runs: dict, x0, repeats: int) -> dict:
-    """Interleaved rounds of one call of each run: min wall time and the first call's."""
+    """Each run's end state, steps, min wall time per call and compile time.
+
+    Interleaved rounds, as `_cases.time_interleaved`, but each sample is ~2 ms of calls in a
+    row: one call of heyoka's scalar loop right after a JAX program's took 2–3× its time in
+    a row (caches, branch predictors), so that single calls would not time it at its best.
+    """
     first, out = {}, {}
     for name, run in runs.items():
         t = time.perf_counter()
         out[name] = jax.block_until_ready(run(x0))
         first[name] = time.perf_counter() - t
-    calls = {}  # calls per sample: at least ~2 ms of them, above the clock's resolution
+    calls = {}
     for name, run in runs.items():
         t = time.perf_counter()
         jax.block_until_ready(run(x0))
@@ -153,7 +158,7 @@ def measure(runs: dict, x0, repeats: int) -> dict:
                    "run_s": best[name], "compile_s": first[name] - best[name]} for name in runs}
 
 
-def main(argv=None) -> None:
+def main(argv=None) -> list[dict]:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="tolerance 1e-10 only, fewer rounds")
     parser.add_argument("--smoke", action="store_true", help="tolerance 1e-8, three methods, one round")
