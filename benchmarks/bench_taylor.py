@@ -40,18 +40,20 @@ jax.config.update("jax_enable_x64", True)
 
 import diffrax  # noqa: E402
 from jax.experimental.jet import jet  # noqa: E402
+from peers import SYSTEMS  # noqa: E402
 
 import grazejax as gj  # noqa: E402
+from grazejax import examples  # noqa: E402
 
-EPS, MU = 1e-4, 0.2
+PARAMS = {"mu": 0.2, "eps": 1e-4}
 X0 = (0.0, 0.0384224)
 T1 = 62.0
+_EX1DOF_FIELD = examples.ex1dof().vector_field
 
 
 def field(x):
     """ex1dof's vector field (`grazejax.examples.ex1dof`) at μ = 0.2, ε = 1e-4."""
-    x1, x2 = x[0], x[1]
-    return jnp.stack([x2, -EPS * (x2**2 + (x1 - 1) ** 2 - (1 + MU) ** 2) * x2 - x1 + 1])
+    return _EX1DOF_FIELD(0.0, x, PARAMS)
 
 
 def order_for(tol: float) -> int:
@@ -118,8 +120,8 @@ def heyoka_run(tol, fp_type=float):
     import heyoka as hy
 
     x1, x2 = hy.make_vars("x1", "x2")
-    rhs = -EPS * (x2**2 + (x1 - 1) ** 2 - (1 + MU) ** 2) * x2 - x1 + 1
-    ta = hy.taylor_adaptive([(x1, x2), (x2, rhs)], [fp_type(0.0)] * 2, tol=fp_type(tol), fp_type=fp_type)
+    rhs = SYSTEMS["ex1dof"].rhs(hy.time, [x1, x2], PARAMS, None)
+    ta = hy.taylor_adaptive(list(zip((x1, x2), rhs, strict=True)), [fp_type(0.0)] * 2, tol=fp_type(tol), fp_type=fp_type)
 
     def run(x0):
         ta.time = fp_type(0.0)
