@@ -206,7 +206,7 @@ def test_sharded_over_four_cpu_devices_equals_single_device():
         print("OK", many.x_final.shape)
         """
     )
-    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=4")
+    env = dict(os.environ, XLA_FLAGS=f"{os.environ.get('XLA_FLAGS', '')} --xla_force_host_platform_device_count=4")
     out = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=600)
     assert out.returncode == 0, out.stderr[-3000:]
     assert "OK (10, 2)" in out.stdout
@@ -258,7 +258,9 @@ def test_two_processes_with_jax_distributed_equal_one_process(tmp_path):
         np.savez(sys.argv[2], **out)
         """
     )
-    env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
+    # (one CPU device per process: a device count in XLA_FLAGS is dropped, the rest kept)
+    flags = [f for f in os.environ.get("XLA_FLAGS", "").split() if "device_count" not in f]
+    env = dict(os.environ, XLA_FLAGS=" ".join(flags))
     procs = [
         subprocess.Popen([sys.executable, "-c", script, str(i), str(tmp_path / f"p{i}.npz")], env=env,
                          stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)

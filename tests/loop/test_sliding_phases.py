@@ -17,6 +17,7 @@ import pytest
 import grazejax as gj
 import grazejax._loop.pool as pool_module
 import grazejax._loop.runners as runners_module
+from grazejax import _compiler
 from grazejax import examples as ex
 
 TABLE_ARGS = {"g": 9.81, "e": 0.3, "A": 0.1, "omega": 12.0}  # A ω² > g: releases
@@ -92,11 +93,17 @@ def test_phases_equal_flat_loop_never_sliding(flat_loop):
 
 
 def test_phases_equal_flat_loop_under_vmap(flat_loop):
-    """Lanes that slide (dropped from low) next to lanes that only bounce at first."""
+    """Lanes that slide (dropped from low) next to lanes that only bounce at first.
+
+    Compiled with XLA's fusion emitters, the default for a batched program (the suite's
+    XLA_FLAGS choose the older ones, tests/conftest.py): with the older emitters the two
+    programs' saved states differ by an ulp (1.8e-15 in 2 of 42), their fusions rounding
+    the dense interpolation differently."""
     x0s = jnp.stack([jnp.array([0.3, 0.0]), jnp.array([0.02, 0.0]), jnp.array([1.0, 0.5])])
-    phased = jax.jit(jax.vmap(lambda x: _table(x, 300)))(x0s)
+    batched = {_compiler.FUSION_EMITTERS_OPTION: True}
+    phased = jax.jit(jax.vmap(lambda x: _table(x, 300)), compiler_options=batched)(x0s)
     with flat_loop:
-        flat = jax.jit(jax.vmap(lambda x: _table(x, 300)))(x0s)
+        flat = jax.jit(jax.vmap(lambda x: _table(x, 300)), compiler_options=batched)(x0s)
     assert np.any(np.asarray(phased.impact_kind) == int(gj.ImpactKind.STICK))
     _assert_bitwise_equal(phased, flat)
 
