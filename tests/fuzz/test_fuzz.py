@@ -4,8 +4,8 @@ The default-suite tests run a few hundred systems (six family × solver pairs co
 four tested solvers, forward and backward time, fixed / moving / curved surfaces, `where`
 pieces, impenetrable walls, several surfaces, vmap lanes) and a small derivative check; the
 slow ones (`pytest -m slow tests/fuzz`: `test_large.py`, `test_large_derivatives.py`) run
-≥ 5,000 systems over every family with two solvers each, and derivatives over more
-families. Every disagreement is classified (`compare.py`); no grazejax defect may remain.
+2,560 systems over every family with two solvers each (5,120 with
+`GRAZEJAX_FUZZ_LANES=256`), and derivatives over more families. Every disagreement is classified (`compare.py`); no grazejax defect may remain.
 The counts are printed (`-s`).
 """
 
