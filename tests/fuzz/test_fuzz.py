@@ -5,8 +5,8 @@ four tested solvers, forward and backward time, fixed / moving / curved surfaces
 pieces, impenetrable walls, several surfaces, vmap lanes) and a small derivative check; the
 slow ones (`pytest -m slow tests/fuzz`: `test_large.py`, `test_large_derivatives.py`) run
 2,560 systems over every family with two solvers each (5,120 with
-`GRAZEJAX_FUZZ_LANES=256`), and derivatives over more families. Every disagreement is classified (`compare.py`); no grazejax defect may remain.
-The counts are printed (`-s`).
+`GRAZEJAX_FUZZ_LANES=256`), and derivatives over more families. Every disagreement is
+classified (`compare.py`); no grazejax defect may remain. The counts are printed (`-s`).
 """
 
 from . import compare as C
