@@ -75,6 +75,7 @@ from ._roots import Chandrupatla as Chandrupatla
 from ._scene import Scene as Scene
 from ._scene import Surface as Surface
 from ._simulate import simulate as simulate
+from ._solution import FailedLanesWarning as FailedLanesWarning
 from ._solution import ImpactLog as ImpactLog
 from ._solution import SimulationError as SimulationError
 from ._solution import Solution as Solution

@@ -44,9 +44,15 @@ class Solution(ImpactLog):
 
     **Fields:**
 
-    - `t_final`, `x_final`: where the run stopped: `t1` on success, else the time and
-      post-impact state of the last impact (`MAX_IMPACTS`, `ZENO`), or the last accepted
-      state (`MAX_STEPS`, `NONFINITE`, ...).
+    - `t_final`, `x_final`: where the run stopped: `t1` and x(t1) on `SUCCESS`; the time
+      and post-impact state of the last impact on `MAX_IMPACTS` and `ZENO`. A failed run
+      (any other status, e.g. a failed lane of [`grazejax.sweep`][]) holds the last state
+      it reached, never a state at `t1`: the last accepted step (`MAX_STEPS`,
+      `STEP_SIZE_UNDERFLOW`, `NONFINITE` from the vector field); the event time and the
+      state its jump produced (`BAD_JUMP`, `FIELD_DISCONTINUITY`; the state before the
+      jump if the jump returned NaN/inf); `t0` and `x0` for a run that did not start
+      (`BAD_START`, `BAD_TIMES`, non-finite `x0` or `args`). Check `status` before using
+      them.
     - `num_impacts`: number of rows used in the impact log: impacts applied (simultaneous
       impacts count once each) plus, with `zeno="stick"`, the starts and ends of sliding
       (kinds `STICK`, `RELEASE`; count impacts with `impact_kind <= GAMMA_PRIME`).
@@ -81,8 +87,13 @@ class Solution(ImpactLog):
         states x, as the paper does). Diffrax's `result` is `status` here."""
         return self.xs
 
-    def summary(self, max_lanes: int = 10) -> str:
+    def summary(self, max_lanes: int = 10, max_impact_lines: int = 10) -> str:
         """A short human-readable account of the run (outside `jit`).
+
+        For one run: the status, the final time and state, then one line per logged
+        impact; with more than `max_impact_lines` impacts, only that many, the first and
+        the last (5 and 5 by default), with a line "... N more impacts ..." between, so
+        that a run of hundreds of impacts fits a screen.
 
         For a batch (from `jax.vmap` or [`grazejax.sweep`][]): the number of lanes with each
         status, the ranges of `t_final`, `num_impacts` and `num_steps`, then one line per
@@ -99,7 +110,16 @@ class Solution(ImpactLog):
             f"x_final = {np.asarray(self.x_final)}",
             f"{k} impact(s); {int(self.num_accepted_steps)} accepted of {int(self.num_steps)} steps",
         ]
-        for i in range(min(k, len(self.impact_times))):
+        rows = min(k, len(self.impact_times))  # (impacts past a full log are not logged)
+        shown = list(range(rows))
+        limit = max(0, max_impact_lines)
+        if rows > limit:
+            tail = limit // 2
+            shown = [*range(limit - tail), None, *range(rows - tail, rows)]
+        for i in shown:
+            if i is None:
+                lines.append(f"  ... {rows - limit} more impacts ...")
+                continue
             kind = ImpactKind(int(self.impact_kind[i]))
             lines.append(
                 f"  #{i}: t = {float(self.impact_times[i]):.15g}  surface {int(self.impact_surface[i])}"
@@ -201,3 +221,39 @@ class SimulationError(RuntimeError):
                 f"{failed[0]}: " + message + " The failing lanes are in error.lanes."
             )
         super().__init__(message + " The Solution is attached as error.solution.")
+
+
+class FailedLanesWarning(UserWarning):
+    """Warned by [`grazejax.sweep`][] (with `throw=False`, the default) when some lanes end
+    in a failure, a status other than `SUCCESS`, `MAX_IMPACTS` or `ZENO`. The message counts
+    the failing lanes by status; each lane's own `status` says which they are, and the
+    other lanes' results are unaffected.
+
+    A sweep that expects failing lanes silences it with the standard `warnings` filters:
+
+    ```python
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", gj.FailedLanesWarning)
+        out = gj.sweep(scene, x0s, t0, t1, args)
+    ```
+    """
+
+
+def failed_lanes_message(status) -> str | None:
+    """What `sweep` warns about a batch's statuses: the failing lanes counted by status
+    name, or None if no lane failed."""
+    status = np.asarray(status).reshape(-1)
+    failed = status[~np.isin(status, [int(s) for s in ACCEPTED])]
+    if failed.size == 0:
+        return None
+    counts = ", ".join(
+        f"{Status(int(code)).name} {int(np.sum(failed == code))}" for code in np.unique(failed)
+    )
+    return (
+        f"grazejax.sweep: {failed.size} of {status.size} lanes failed ({counts}); their "
+        "x_final and t_final hold the state where they stopped, not the state at t1. Read "
+        "Solution.status (Solution.summary() counts the statuses), or pass throw=True to "
+        "raise a SimulationError that names the failing lanes."
+    )

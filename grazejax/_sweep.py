@@ -31,6 +31,7 @@ step counts agree exactly in the tests.
 
 import contextlib
 import inspect
+import warnings
 from collections.abc import Sequence
 from typing import Any, Literal, NamedTuple
 
@@ -43,7 +44,7 @@ from ._compiler import compiler_options
 from ._loop.pool import run_pool
 from ._scene import Scene
 from ._simulate import _throw_if_failed, prepare, simulate
-from ._solution import Solution
+from ._solution import FailedLanesWarning, Solution, failed_lanes_message
 from ._validate import saveat_times
 
 _BALANCES = ("refill", "none")
@@ -141,8 +142,11 @@ def sweep(
 
     **Returns:** a [`grazejax.Solution`][] whose fields are NumPy arrays with a leading batch
     axis, in the order of the inputs (with `saveat`, `ts` too has one row per lane). A lane
-    that fails (NaN, Zeno, max steps) reports it in its own `status` and never affects the
-    others. Results do not depend on `chunk_size`, `pool_size` or the devices (see the
+    that fails (NaN, max steps, ...) reports it in its own `status` and never affects the
+    others; if any lane fails, `sweep` warns once with a [`grazejax.FailedLanesWarning`][]
+    that counts the failing lanes by status (with `throw=True` it raises a
+    [`grazejax.SimulationError`][] instead). `SUCCESS`, `MAX_IMPACTS` and `ZENO` are not
+    failures. Results do not depend on `chunk_size`, `pool_size` or the devices (see the
     module docstring for what "the same" means across `balance` values).
 
     **Example:**
@@ -240,7 +244,14 @@ def sweep(
         if bar is not None:
             bar.close()
     result = jax.tree.map(lambda *leaves: np.concatenate(leaves, axis=0), *pieces)
-    return _throw_if_failed(result) if throw else result
+    if throw:
+        return _throw_if_failed(result)
+    # Failing lanes are easy to miss among thousands: warn once, with or without a
+    # progress bar (`throw=True` raises instead).
+    message = failed_lanes_message(result.status)
+    if message is not None:
+        warnings.warn(message, FailedLanesWarning, stacklevel=2)
+    return result
 
 
 # The progress bar that the pool's in-program reports (`run_pool(on_finished=...)`) go to.

@@ -81,11 +81,13 @@ def validate_inputs(
     if x0.shape[0] == 0:
         raise ValueError("x0 is empty: the state needs at least one coordinate")
     if args is not None:
-        for leaf in jax.tree.leaves(args):
+        for path, leaf in jax.tree_util.tree_flatten_with_path(args)[0]:
             if eqx.is_array_like(leaf) and is_concrete(leaf):
                 value = np.asarray(leaf)
                 if np.issubdtype(value.dtype, np.inexact) and not np.all(np.isfinite(value)):
-                    raise ValueError(f"args contains NaN or inf: {value}")
+                    raise ValueError(
+                        f"args{jax.tree_util.keystr(path)} contains NaN or inf: {value}"
+                    )
 
     concrete_times = is_concrete(t0) and is_concrete(t1)
     if concrete_times:

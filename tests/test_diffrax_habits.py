@@ -130,12 +130,17 @@ def _nan_above(height):
 
 
 @pytest.mark.parametrize("balance", ["refill", "none"])
-def test_sweep_throw_names_the_failing_lanes(balance):
+def test_sweep_warns_or_throws_naming_the_failing_lanes(balance):
     scene = _nan_above(3.0)
     x0s = np.array([[0.1, 0.0], [5.0, 0.0], [0.2, 0.0], [4.0, 0.0]])
     kw = dict(max_impacts=5, max_steps=50, progress=False, balance=balance)
-    quiet = gj.sweep(scene, x0s, 0.0, 1.0, ARGS, **kw)
+    # Without throw: one warning (progress=False too) that counts the failing lanes.
+    with pytest.warns(gj.FailedLanesWarning) as warned:
+        quiet = gj.sweep(scene, x0s, 0.0, 1.0, ARGS, **kw)
     np.testing.assert_array_equal(quiet.status == gj.Status.NONFINITE, [False, True, False, True])
+    assert len(warned) == 1 and warned[0].filename == __file__
+    assert str(warned[0].message).startswith("grazejax.sweep: 2 of 4 lanes failed (NONFINITE 2)")
+    # With throw: the error instead (a warning first would be an error here too).
     with pytest.raises(gj.SimulationError) as info:
         gj.sweep(scene, x0s, 0.0, 1.0, ARGS, throw=True, **kw)
     np.testing.assert_array_equal(info.value.lanes, [1, 3])

@@ -285,3 +285,19 @@ def test_summary_is_readable():
     sol = gj.simulate(ex.bouncing_ball(), [1.0, 0.0], 0.0, 1.0, {"g": 9.81, "e": 0.8})
     text = sol.summary()
     assert "SUCCESS" in text and "impact" in text
+
+
+def test_summary_of_many_impacts_fits_a_screen():
+    """The README's ball to t = 5: 63 impacts before Zeno; the summary shows the first and
+    last five and counts the others."""
+    sol = gj.simulate(ex.bouncing_ball(), [1.0, 0.0], 0.0, 5.0, {"g": 9.81, "e": 0.8})
+    k = int(sol.num_impacts)
+    assert gj.Status(int(sol.status)) == gj.Status.ZENO and k > 20
+    lines = sol.summary().splitlines()
+    assert len(lines) < 25
+    numbers = [int(line.split(":")[0].strip()[1:]) for line in lines if line.startswith("  #")]
+    assert numbers == [0, 1, 2, 3, 4, k - 5, k - 4, k - 3, k - 2, k - 1]
+    assert lines.index(f"  ... {k - 10} more impacts ...") == lines.index(next(
+        line for line in lines if line.startswith(f"  #{k - 5}:"))) - 1
+    every = sol.summary(max_impact_lines=k).splitlines()
+    assert len(every) == len(lines) + k - 11 and "more impacts" not in "\n".join(every)

@@ -45,7 +45,8 @@ def test_sweep_over_parameters():
 def test_a_bad_lane_does_not_spoil_the_others():
     args = ex.ex1dof_args(0.2)
     x0s = np.array([[0.0, 0.5], [np.nan, 0.5], [0.0, 0.7]])
-    out = gj.sweep(SCENE, x0s, 0.0, 20.0, args, **OPTS)
+    with pytest.warns(gj.FailedLanesWarning, match=r"1 of 3 lanes failed \(NONFINITE 1\)"):
+        out = gj.sweep(SCENE, x0s, 0.0, 20.0, args, **OPTS)
     assert list(out.status) == [gj.Status.SUCCESS, gj.Status.NONFINITE, gj.Status.SUCCESS]
     assert np.all(np.isfinite(out.x_final[[0, 2]]))
 
@@ -120,15 +121,20 @@ def _assert_same_lanes(out, ref, exact):
 def test_refill_equals_loop_and_vmap(heights, restitutions, nan_lane):
     x0s, args = _ball_lanes(heights, restitutions, nan_lane)
     kw = dict(progress=False, **BALL_OPTS)
-    # A pool of 4 slots fed from a queue of 12: about ten refills per chunk.
-    pool = gj.sweep(BALL, x0s, 0.0, 3.0, args, balance="refill", pool_size=4, **kw)
+    # A pool of 4 slots fed from a queue of 12: about ten refills per chunk. (The NaN lane
+    # fails: every sweep warns.)
+    with pytest.warns(gj.FailedLanesWarning, match="NONFINITE 1"):
+        pool = gj.sweep(BALL, x0s, 0.0, 3.0, args, balance="refill", pool_size=4, **kw)
     assert pool.status[nan_lane] == gj.Status.NONFINITE
     # The bit-for-bit claims: other pool widths and chunkings give the same bits...
-    wide = gj.sweep(BALL, x0s, 0.0, 3.0, args, balance="refill", chunk_size=7, pool_size=7, **kw)
+    with pytest.warns(gj.FailedLanesWarning, match="NONFINITE 1"):
+        wide = gj.sweep(BALL, x0s, 0.0, 3.0, args, balance="refill", chunk_size=7, pool_size=7,
+                        **kw)
     _assert_same_lanes(wide, pool, exact=True)
     # ... and so does plain vmap (the same loop; only XLA's fusion of it differs, which can
     # move a result by an ulp: see the module docstring of grazejax._sweep).
-    plain = gj.sweep(BALL, x0s, 0.0, 3.0, args, balance="none", **kw)
+    with pytest.warns(gj.FailedLanesWarning, match="NONFINITE 1"):
+        plain = gj.sweep(BALL, x0s, 0.0, 3.0, args, balance="none", **kw)
     _assert_same_lanes(plain, pool, exact=True)
     # One by one (unbatched XLA code rounds differently in the last bits).
     singles = [_ball_single(x0s[i], args["e"][i]) for i in range(LANES)]
@@ -168,9 +174,15 @@ def test_refill_mixes_lane_costs_and_statuses():
     # Deterministic companion of the property test: make sure the mix it relies on happens
     # (Zeno lanes, max-steps lanes, a full impact log, a NaN lane, lanes with 0 steps).
     x0s, args = _ball_lanes(np.linspace(0.1, 2.0, LANES), np.linspace(0.2, 0.97, LANES), 5)
-    out = gj.sweep(BALL, x0s, 0.0, 3.0, args, balance="refill", pool_size=4, progress=False,
-                   **BALL_OPTS)
+    with pytest.warns(gj.FailedLanesWarning) as warned:
+        out = gj.sweep(BALL, x0s, 0.0, 3.0, args, balance="refill", pool_size=4, progress=False,
+                       **BALL_OPTS)
     statuses = set(out.status.tolist())
+    failed = {gj.Status(s).name: int(np.sum(out.status == s)) for s in sorted(statuses)
+              if s not in (gj.Status.SUCCESS, gj.Status.MAX_IMPACTS, gj.Status.ZENO)}
+    assert len(warned) == 1 and str(warned[0].message).startswith(
+        f"grazejax.sweep: {sum(failed.values())} of {LANES} lanes failed ("
+        + ", ".join(f"{name} {n}" for name, n in failed.items()) + ")")
     assert {gj.Status.ZENO, gj.Status.MAX_STEPS, gj.Status.NONFINITE} <= statuses, statuses
     assert out.num_steps.max() == 60 and out.num_steps.min() == 0
     assert out.num_impacts.max() >= 5 * max(1, out.num_impacts[out.num_impacts > 0].min())
@@ -273,6 +285,8 @@ def test_two_processes_with_jax_distributed_equal_one_process(tmp_path):
     for i in range(2):
         got = np.load(tmp_path / f"p{i}.npz")
         for balance in ("refill", "none"):
-            ref = gj.sweep(SCENE, x0s, 0.0, 30.0, ex.ex1dof_args(0.2), balance=balance, **OPTS)
+            with pytest.warns(gj.FailedLanesWarning, match="NONFINITE 1"):
+                ref = gj.sweep(SCENE, x0s, 0.0, 30.0, ex.ex1dof_args(0.2), balance=balance,
+                               **OPTS)
             for k in ("x_final", "num_impacts", "status", "impact_times"):
                 np.testing.assert_array_equal(got[f"{balance}_{k}"], getattr(ref, k), err_msg=k)

@@ -50,3 +50,28 @@ def test_docs_build_in_strict_mode(tmp_path):
     home = (tmp_path / "site" / "index.html").read_text(encoding="utf-8")
     assert "Differentiable simulation of impact systems with grazing points" in home
     assert 'href="tour/"' in home and 'src="img/ex1dof-bifurcation.png"' in home
+
+
+def test_wheel_ships_the_license_and_the_typed_marker(tmp_path):
+    """The Apache-2.0 text (pyproject's `license-files`) and `py.typed` (PEP 561: type
+    checkers read grazejax's annotations) are in the repository and in the built wheel."""
+    import zipfile
+
+    license_text = (ROOT / "LICENSE").read_text(encoding="utf-8")
+    assert "Apache License" in license_text and "Version 2.0, January 2004" in license_text
+    assert "END OF TERMS AND CONDITIONS" in license_text
+    assert (ROOT / "grazejax" / "py.typed").is_file()
+    # With hatchling installed (the `test` extra) the build needs no isolated environment
+    # (and no package index); without it pip installs hatchling into one.
+    isolation = ["--no-build-isolation"] if importlib.util.find_spec("hatchling") else []
+    result = _run("pip", "wheel", "--no-deps", "--quiet", *isolation, "-w", str(tmp_path), ".")
+    assert result.returncode == 0, result.stdout + result.stderr
+    (wheel,) = tmp_path.glob("grazejax-*.whl")
+    with zipfile.ZipFile(wheel) as archive:
+        names = archive.namelist()
+        info = next(name for name in names if name.endswith(".dist-info/METADATA"))
+        metadata = archive.read(info).decode()
+        assert "grazejax/py.typed" in names
+        (shipped,) = [name for name in names if name.endswith(".dist-info/licenses/LICENSE")]
+        assert archive.read(shipped).decode() == license_text
+    assert "License-Expression: Apache-2.0" in metadata

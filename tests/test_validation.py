@@ -31,9 +31,17 @@ def test_bad_x0(x0, match):
         gj.simulate(BALL, x0, 0.0, 1.0, ARGS)
 
 
-def test_nan_args():
-    with pytest.raises(ValueError, match="args contains NaN"):
-        gj.simulate(BALL, [1.0, 0.0], 0.0, 1.0, {"g": 9.81, "e": float("nan")})
+@pytest.mark.parametrize(
+    "args,match",
+    [
+        ({"g": 9.81, "e": float("nan")}, r"args\['e'\] contains NaN or inf: nan"),
+        ({"g": 9.81, "e": 0.8, "wall": {"c": [1.0, np.inf]}},
+         r"args\['wall'\]\['c'\]\[1\] contains NaN or inf: inf"),
+    ],
+)
+def test_nan_args_named_by_their_key_path(args, match):
+    with pytest.raises(ValueError, match=match):
+        gj.simulate(BALL, [1.0, 0.0], 0.0, 1.0, args)
 
 
 def test_t0_equals_t1():

@@ -82,7 +82,8 @@ class BifurcationCurve(eqx.Module):
     - `multipliers`: of its monodromy, modulus descending.
     - `num_impacts`: impacts per period.
     - `codim2`: the codimension-two points met ([`grazejax.Codim2Point`][]).
-    - `status`: a [`grazejax.ContinuationStatus`][] code; `message` reads it.
+    - `status`: a [`grazejax.ContinuationStatus`][] (shown by name; equal to its
+      integer code); `message` reads it.
     """
 
     kind: str = eqx.field(static=True)
@@ -94,7 +95,7 @@ class BifurcationCurve(eqx.Module):
     multipliers: Any
     num_impacts: Any
     codim2: tuple = eqx.field(static=True)
-    status: int = eqx.field(static=True)
+    status: ContinuationStatus = eqx.field(static=True, converter=ContinuationStatus)
 
     @property
     def message(self) -> str:

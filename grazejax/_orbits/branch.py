@@ -103,7 +103,8 @@ class Branch(eqx.Module):
       (amplitude for bifurcation diagrams).
     - `poincare_determinant`: the (A6) determinant per point.
     - `grazing`: the [`grazejax.GrazingPoint`][]s met, in order.
-    - `status`: a [`grazejax.ContinuationStatus`][] code; `message` reads it.
+    - `status`: a [`grazejax.ContinuationStatus`][] (shown by name; equal to its
+      integer code); `message` reads it.
     - `settings`: the [`grazejax.SolverSettings`][] of the continuation (every point is a
       converged orbit: a point whose corrector fails is never recorded).
     - `special_points`: the [`grazejax.SpecialPoint`][]s (period doubling, folds,
@@ -121,7 +122,7 @@ class Branch(eqx.Module):
     x_max: Any
     poincare_determinant: Any
     grazing: tuple = eqx.field(static=True)
-    status: int = eqx.field(static=True)
+    status: ContinuationStatus = eqx.field(static=True, converter=ContinuationStatus)
     settings: SolverSettings | None = eqx.field(static=True, default=None)
     special_points: tuple = eqx.field(static=True, default=())
 

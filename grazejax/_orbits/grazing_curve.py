@@ -73,7 +73,8 @@ class GrazingCurve(eqx.Module):
       physical grazing orbit, clearly negative if the orbit crosses the surface elsewhere.
     - `num_impacts`: impacts per period on the *other* surfaces.
     - `surface`: the index of the grazed surface.
-    - `status`: a [`grazejax.ContinuationStatus`][] code; `message` reads it.
+    - `status`: a [`grazejax.ContinuationStatus`][] (shown by name; equal to its
+      integer code); `message` reads it.
     - `settings`: the [`grazejax.SolverSettings`][] used.
     """
 
@@ -86,7 +87,7 @@ class GrazingCurve(eqx.Module):
     min_gap: Any
     num_impacts: Any
     surface: int = eqx.field(static=True)
-    status: int = eqx.field(static=True)
+    status: ContinuationStatus = eqx.field(static=True, converter=ContinuationStatus)
     settings: SolverSettings | None = eqx.field(static=True, default=None)
 
     @property

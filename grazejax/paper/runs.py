@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import functools
 import math
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -23,7 +24,7 @@ import jax
 import numpy as np
 
 from .. import examples, plot
-from .._solution import Solution
+from .._solution import FailedLanesWarning, Solution
 from .._status import ImpactKind, Status
 from .._sweep import sweep
 
@@ -145,11 +146,16 @@ def _sweep(scene_name: str, cfg: RunConfig, x_now, args, t0s, end: float, grids,
         index = np.concatenate([members, np.full(batch - len(members), members[0])])
         lane_args = (jax.tree.map(lambda leaf, index=index: np.asarray(leaf)[index], args)
                      if batch_args else args)
-        sol = sweep(
-            scene, x_now[index], float(t0), end, lane_args, args_batched=flags, balance="none",
-            progress=False, rtol=cfg.rtol, atol=cfg.atol, max_impacts=cfg.max_impacts,
-            max_steps=cfg.max_steps, saveat=None if grids is None else grids[members[0]],
-        )
+        # `run_batch` keeps each lane's status in the Solution it returns; a warning per
+        # chunk (padding lanes included) would count the same lanes again and again.
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", FailedLanesWarning)
+            sol = sweep(
+                scene, x_now[index], float(t0), end, lane_args, args_batched=flags,
+                balance="none", progress=False, rtol=cfg.rtol, atol=cfg.atol,
+                max_impacts=cfg.max_impacts, max_steps=cfg.max_steps,
+                saveat=None if grids is None else grids[members[0]],
+            )
         for row, i in enumerate(members):
             yield i, sol, row
 

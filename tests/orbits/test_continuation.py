@@ -274,7 +274,8 @@ def test_forced_oscillator_period_doubling_and_the_period_two_orbit():
 
 
 def test_branch_export_and_labelled_diagram(tmp_path):
-    """CSV/JSON export and the diagram's labels, on a hand-made three-point branch."""
+    """The repr, CSV/JSON export and the diagram's labels, on a hand-made three-point
+    branch."""
     import csv
     import json
 
@@ -289,6 +290,9 @@ def test_branch_export_and_labelled_diagram(tmp_path):
         poincare_determinant=np.ones(3), grazing=(), status=int(ContinuationStatus.REACHED_STOP),
         special_points=(pd_point,),
     )
+    # The repr names the status (the field holds the enum, equal to its code).
+    assert "status=<ContinuationStatus.REACHED_STOP: 0>" in repr(branch)
+    assert branch.status == 0 and branch.status is ContinuationStatus.REACHED_STOP
     rows = list(csv.DictReader(branch.to_csv(tmp_path / "b.csv").splitlines()))
     assert (tmp_path / "b.csv").exists() and len(rows) == 3
     assert float(rows[1]["mu"]) == 0.5 and rows[1]["special"] == "PD" and rows[0]["special"] == ""
