@@ -8,6 +8,7 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 
+from ._compilation_cache import enable_compilation_cache as enable_compilation_cache
 from ._compiler import compiler_options as compiler_options
 from ._conditions import ConditionReport as ConditionReport
 from ._conditions import ConditionResult as ConditionResult

@@ -10,10 +10,11 @@ from __future__ import annotations
 
 import argparse
 import importlib.util
-import os
 import subprocess
 import sys
 from pathlib import Path
+
+from ._compilation_cache import CACHE_ENV, enable_compilation_cache
 
 BENCH_SCRIPT = Path("benchmarks") / "bench_suite.py"
 BENCH_SCRIPTS = {
@@ -22,36 +23,6 @@ BENCH_SCRIPTS = {
     "sweep": "bench_sweep.py",
     "gradients": "bench_gradients.py",
 }
-# JAX's persistent compilation cache for `grazejax reproduce`: a folder, or "off".
-CACHE_ENV = "GRAZEJAX_COMPILATION_CACHE"
-
-
-def compilation_cache_dir() -> Path | None:
-    """Where `grazejax reproduce` keeps compiled XLA programs between runs, or None (off).
-
-    `$GRAZEJAX_COMPILATION_CACHE` if set ("off", "0" or "" turns the cache off), else
-    `$XDG_CACHE_HOME/grazejax/jax` (default `~/.cache/grazejax/jax`).
-    """
-    value = os.environ.get(CACHE_ENV)
-    if value is not None:
-        return None if value.strip().lower() in ("", "0", "off", "none") else Path(value)
-    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
-    return Path(base) / "grazejax" / "jax"
-
-
-def _enable_compilation_cache() -> None:
-    """Turn on JAX's persistent compilation cache: a second `grazejax reproduce` loads its
-    simulators instead of recompiling them (compiling is most of a short run's time).
-
-    A cache folder the user gave JAX itself (`JAX_COMPILATION_CACHE_DIR`) is kept. Not
-    for `grazejax bench`: it measures cold compile times.
-    """
-    import jax
-
-    path = compilation_cache_dir()
-    if path is None or jax.config.jax_compilation_cache_dir is not None:
-        return
-    jax.config.update("jax_compilation_cache_dir", str(path))
 
 
 def _figure_help() -> str:
@@ -208,9 +179,12 @@ def _reproduce(ns, parser) -> int:
     if ns.list:
         print(_figure_help())
         return 0
-    _enable_compilation_cache()
     from ._memory import retain_freed_memory
 
+    # A second run loads its simulators instead of compiling them again (compiling is most
+    # of a short run's time); $GRAZEJAX_COMPILATION_CACHE moves the folder or turns it off.
+    # Not for `grazejax bench`: it measures cold compile times.
+    enable_compilation_cache()
     retain_freed_memory()  # its own process: no fresh pages for each run's results
     try:
         names = rp.resolve_names(ns.only)

@@ -134,7 +134,9 @@ def sweep(
       share per device if smaller). Wider pools vectorise better; narrower ones waste
       less on the last lanes of a chunk.
     - `progress`: show a tqdm progress bar of the lanes done (with `balance="refill"` it
-      moves as lanes finish inside a chunk; with `"none"`, chunk by chunk).
+      moves as lanes finish inside a chunk; with `"none"`, chunk by chunk). Until the first
+      lanes are done it reads "compiling", without rate or ETA; then its clock restarts,
+      so that rate and ETA are those of the run.
     - `**simulate_kwargs`: every keyword option of `simulate` (rtol, atol, solver,
       max_impacts, saveat, ...). `adjoint` is checked and otherwise has no effect: the
       results are NumPy arrays, not differentiable (differentiate a batch with
@@ -221,11 +223,7 @@ def sweep(
     run_chunk = _compiled_chunk(scene, t0, t1, flags, x0_batched, devices, width, simulate_kwargs,
                                 progress=progress)
 
-    bar = None
-    if progress:
-        from tqdm.auto import tqdm
-
-        bar = tqdm(total=batch, desc="grazejax.sweep", unit="lane")
+    bar = _Progress(batch) if progress else None
     pieces = []
     try:
         for start in range(0, batch, chunk_size):
@@ -238,8 +236,7 @@ def sweep(
                 out = run_chunk(x, a, np.arange(chunk_size) < size)
                 pieces.append(jax.tree.map(lambda leaf, size=size: _to_host(leaf)[:size], out))
             if bar is not None:  # exact count (the pool's reports are per refill)
-                bar.n = start + size
-                bar.refresh()
+                bar.set(start + size)
     finally:
         if bar is not None:
             bar.close()
@@ -271,7 +268,55 @@ def _lanes_done_to(bar):
 def _report_lanes_done(count) -> None:
     bar = _BAR[0]
     if bar is not None and int(count) > 0:
-        bar.update(int(count))
+        bar.add(int(count))
+
+
+class _Progress:
+    """tqdm's bar of the lanes done.
+
+    The first chunk compiles the program before it runs a lane, often for longer than the
+    lanes take, so a rate and an ETA counted from the start would be the compile's. Until
+    the first lanes are done (reported from inside the first chunk with
+    `balance="refill"`, at its end with `"none"`), the bar says it is compiling and shows
+    neither. Then its clock restarts, so that rate, ETA and elapsed time are the run's;
+    a sweep done by then keeps its whole time and mean rate.
+    """
+
+    DESCRIPTION = "grazejax.sweep"
+    COMPILING_FORMAT = "{desc}: {percentage:3.0f}%|{bar}| {n_fmt}/{total_fmt} [{elapsed}]"
+
+    def __init__(self, total: int):
+        from tqdm.auto import tqdm
+
+        self.bar = tqdm(total=total, desc=f"{self.DESCRIPTION} (compiling)", unit="lane",
+                        bar_format=self.COMPILING_FORMAT)
+        self.compiling = True
+
+    def add(self, count: int) -> None:
+        """Lanes done inside a chunk (the pool's reports, one per refill)."""
+        self.bar.update(count)
+        self._running()
+
+    def set(self, done: int) -> None:
+        """The exact count at the end of a chunk."""
+        self.bar.n = done
+        self._running()
+        self.bar.refresh()
+
+    def close(self) -> None:
+        self.bar.close()
+
+    def _running(self) -> None:
+        if not self.compiling:
+            return
+        self.compiling = False
+        bar, done = self.bar, self.bar.n
+        bar.bar_format = None  # tqdm's default: with rate and ETA
+        bar.set_description(self.DESCRIPTION, refresh=False)
+        if done < bar.total:
+            bar.reset()  # (a fresh clock and rate estimate; it sets n to 0)
+            bar.n = bar.initial = bar.last_print_n = done
+        bar.refresh()
 
 
 def _put(value, sharding):

@@ -1,4 +1,5 @@
-"""XLA compiler options (`grazejax/_compiler.py`).
+"""XLA compiler options (`grazejax/_compiler.py`) and the persistent compilation cache
+(`grazejax/_compilation_cache.py`).
 
 The vector width changes how XLA vectorises the lanes of a vmapped run, not its
 arithmetic: the same batch compiled with 512-bit and with XLA's default vectors gives the
@@ -8,10 +9,16 @@ state. When the options apply is checked against the host, the user's XLA_FLAGS 
 this XLA knows; the kernels compiled with the one-run options nest in other programs.
 """
 
+import os
+import subprocess
+import sys
+import textwrap
+
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from jax.experimental.compilation_cache import compilation_cache
 
 import grazejax as gj
 from grazejax import _compiler
@@ -191,3 +198,74 @@ def test_sweep_compiles_with_the_batched_options(monkeypatch, balance):
                    progress=False)
     assert sol.x_final.shape == (3, 2)
     assert asked == [(jax.devices()[0].platform, True)]
+
+
+@pytest.fixture
+def jax_cache_config():
+    """Restores the test run's own cache folder (`conftest.py`) after a test that moves it."""
+    saved = (jax.config.jax_compilation_cache_dir,
+             jax.config.jax_persistent_cache_min_compile_time_secs)
+    yield
+    jax.config.update("jax_compilation_cache_dir", saved[0])
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", saved[1])
+    compilation_cache.reset_cache()  # JAX reopens the restored folder at its next compile
+
+
+def test_enable_compilation_cache_sets_the_folder(jax_cache_config, tmp_path, monkeypatch):
+    monkeypatch.delenv("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", raising=False)
+    monkeypatch.setenv("GRAZEJAX_COMPILATION_CACHE", "off")  # an explicit folder wins
+    assert gj.enable_compilation_cache(tmp_path / "xla") == tmp_path / "xla"
+    assert jax.config.jax_compilation_cache_dir == str(tmp_path / "xla")
+    assert jax.config.jax_persistent_cache_min_compile_time_secs == 0.5
+    # Without a folder: "off" changes nothing; a folder JAX has is kept.
+    assert gj.enable_compilation_cache() is None
+    assert jax.config.jax_compilation_cache_dir == str(tmp_path / "xla")
+    monkeypatch.setenv("GRAZEJAX_COMPILATION_CACHE", str(tmp_path / "other"))
+    assert gj.enable_compilation_cache() == tmp_path / "xla"
+    # ... else the variable's folder, else the user's cache folder.
+    jax.config.update("jax_compilation_cache_dir", None)
+    assert gj.enable_compilation_cache() == tmp_path / "other"
+    jax.config.update("jax_compilation_cache_dir", None)
+    monkeypatch.delenv("GRAZEJAX_COMPILATION_CACHE")
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "home"))
+    assert gj.enable_compilation_cache() == tmp_path / "home" / "grazejax" / "jax"
+    # A minimum compile time the user set for JAX is kept.
+    monkeypatch.setenv("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "2.0")
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 2.0)
+    gj.enable_compilation_cache(tmp_path)
+    assert jax.config.jax_persistent_cache_min_compile_time_secs == 2.0
+
+
+CACHED_RUN = textwrap.dedent(
+    """
+    import sys, time
+    import jax, jax.numpy as jnp
+    import grazejax as gj
+    from grazejax import examples as ex
+
+    events = []
+    jax.monitoring.register_event_listener(lambda event, **_: events.append(event))
+    gj.enable_compilation_cache(sys.argv[1])
+    start = time.perf_counter()
+    sol = gj.simulate(ex.bouncing_ball(), jnp.array([1.0, 0.0]), 0.0, 2.0,
+                      {"g": 9.81, "e": 0.8})
+    jax.block_until_ready(sol.x_final)
+    print(events.count("/jax/compilation_cache/cache_hits"),
+          events.count("/jax/compilation_cache/cache_misses"), time.perf_counter() - start)
+    """
+)
+
+
+def test_a_second_process_loads_its_program_from_the_cache(tmp_path):
+    # Every program is stored (no minimum compile time), so that the check does not hang on
+    # how fast this machine compiles.
+    env = {**os.environ, "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": "0"}
+    runs = []
+    for _ in range(2):
+        out = subprocess.run([sys.executable, "-c", CACHED_RUN, str(tmp_path)], env=env,
+                             capture_output=True, text=True, check=True, timeout=300)
+        hits, misses, seconds = out.stdout.split()
+        runs.append((int(hits), int(misses), float(seconds)))
+    print("first simulate (hits, misses, s): compiled", runs[0], "from the cache", runs[1])
+    assert runs[0][0] == 0 and runs[0][1] > 0
+    assert runs[1][:2] == (runs[0][1], 0)

@@ -2,6 +2,9 @@
 jit, single runs and batches), `Solution.summary()` on a batch, a progress bar that counts
 lanes, and `grazejax bench` naming the extra it needs."""
 
+import io
+import re
+
 import diffrax
 import equinox as eqx
 import jax
@@ -174,24 +177,23 @@ def test_summary_of_a_batch_counts_statuses_and_lists_lanes():
 
 @pytest.mark.parametrize("balance", ["refill", "none"])
 def test_progress_counts_lanes(monkeypatch, balance):
+    import tqdm.auto
+
     bars = []
 
-    class Bar:
-        def __init__(self, total, **kw):
-            self.total, self.unit, self.n, self.updates = total, kw.get("unit"), 0, []
+    class Bar(tqdm.auto.tqdm):  # the real bar, drawn into a string, every update shown
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, file=io.StringIO(), mininterval=0, **kwargs)
+            self.updates = []
             bars.append(self)
 
-        def update(self, k):
-            self.updates.append(k)
-            self.n += k
-
-        def refresh(self):
-            pass
+        def update(self, n=1):
+            self.updates.append(n)
+            return super().update(n)
 
         def close(self):
-            pass
-
-    import tqdm.auto
+            self.drawn = self.fp.getvalue()
+            super().close()
 
     monkeypatch.setattr(tqdm.auto, "tqdm", Bar)
     x0s = np.stack([np.full(12, 0.0), np.linspace(0.05, 0.9, 12)], axis=1)
@@ -202,4 +204,15 @@ def test_progress_counts_lanes(monkeypatch, balance):
     if balance == "refill":
         # One chunk, but the bar moves as the pool's slots finish, never past the total.
         assert len(bar.updates) > 1 and sum(bar.updates) <= 12
+    # Until the first lanes are done the program compiles: the bar says so, with no rate or
+    # ETA (they would be the compile's); then tqdm's usual rate and ETA.
+    frames = [f.strip() for f in bar.drawn.split("\r") if f.strip()]
+    compiling = [f for f in frames if "(compiling)" in f]
+    running = frames[len(compiling):]
+    assert compiling and frames[:len(compiling)] == compiling, frames
+    assert all("lane/s" not in f and "s/lane" not in f and "<" not in f for f in compiling)
+    assert compiling[0].startswith("grazejax.sweep (compiling):   0%")
+    assert running and all(f.startswith("grazejax.sweep: ") and "<" in f for f in running)
+    assert re.search(r"\d(lane/s|s/lane)\]$", running[-1]), running[-1]
+    assert running[-1].startswith("grazejax.sweep: 100%")
     assert _sweep._BAR[0] is None  # no bar left behind for a later sweep's reports

@@ -58,3 +58,12 @@ def test_python_blocks_run(path, tmp_path, monkeypatch):
                 f"{type(error).__name__}: {error}"
             ) from error
         print(f"{path.name}:{line}: {time.perf_counter() - start:.1f} s")
+
+
+def test_the_tours_continuation_comment_names_the_range_of_its_call():
+    # The comment said "to -0.3: across the grazing" above a call that runs from 0.2 to 0.1.
+    code = "\n".join(code for _, code in python_blocks((ROOT / "docs" / "tour.md").read_text(
+        encoding="utf-8")) if "continue_orbit(" in code)
+    call = re.search(r"continue_orbit\([^\n]*, ([-\d.]+), ([-\d.]+)\)", code)
+    assert call, code
+    assert f"# μ from {call[1]} down to {call[2]}:" in code

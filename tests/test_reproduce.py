@@ -236,6 +236,7 @@ def test_claims_cheap_groups_and_error_rows(monkeypatch):
     assert claims["summary"]["errors"] == 1 and claims["summary"]["reasons_inconsistent"] == []
     assert any("[claims 2/3] smalldisc" in line for line in lines)
     assert any("FAILED: ValueError: boom" in line for line in lines)
+    assert not any("differ" in line for line in lines)  # said once, by the final tally
     md = "\n".join(claims_markdown(claims))
     assert "| smalldisc.cycle |" in md and "**error**" in md
     assert "y2 after the Γ2 jump: \\|printed − computed\\|" in md
@@ -253,6 +254,70 @@ def test_claims_cheap_groups_and_error_rows(monkeypatch):
                                                          "orbex2.psi-periodic"]
     assert any("reason does not fit" in line for line in lines)
     assert "the typed-in reason does not fit" in "\n".join(claims_markdown(again))
+
+
+def _summary(**changes):
+    summary = dict(rows=37, agrees=16, differs=21, errors=0, checks_consistent=37,
+                   checks_inconsistent=0, reasons_inconsistent=[])
+    return {**summary, **changes}
+
+
+def test_claims_tally():
+    """One line for the whole table: the differences from the printed values are expected."""
+    from grazejax.paper.report import claims_tally
+
+    assert claims_tally(_summary()) == (
+        "claims: 37 checked; an independent check agrees with grazejax's value in 37; 21 differ "
+        "from the value printed in the paper (expected: many of the paper's printed numbers are "
+        "wrong or approximate; report.md gives the reason for each).")
+    assert "expected" not in claims_tally(_summary(agrees=37, differs=0))
+    worse = claims_tally(_summary(errors=2, checks_consistent=33, checks_inconsistent=1,
+                                  reasons_inconsistent=["ex1dof.A5"]))
+    assert worse.startswith("claims: 35 checked; an independent check agrees with grazejax's "
+                            "value in 33, NOT in 1 (1 without one); 21 differ")
+    assert worse.endswith("; 2 could not be computed; the typed-in reason does not fit the "
+                          "computed verdict in ex1dof.A5.")
+
+
+def _made_up_claims(monkeypatch):
+    """A made-up claims table instead of the 2-3 minutes of the real one."""
+    from grazejax.paper import reproduce as rp
+
+    claims = {"rows": [], "seconds": 0.1, "group_seconds": {}, "tolerance": {"rtol": 1e-10,
+              "atol": 1e-12}, "summary": _summary()}
+    monkeypatch.setattr(rp, "compute_claims", lambda context, progress: claims)
+    return claims
+
+
+def test_reproduce_ends_with_the_claims_tally(tmp_path, capsys, monkeypatch):
+    from grazejax.paper.report import claims_tally
+
+    claims = _made_up_claims(monkeypatch)
+    assert _cli.main(["reproduce", "--out", str(tmp_path), "--only", "claims"]) == 0
+    printed = capsys.readouterr().out.splitlines()
+    assert printed[-1] == claims_tally(claims["summary"])
+    assert not any("differ" in line for line in printed[:-1])
+
+
+def test_reproduce_turns_on_the_compilation_cache(tmp_path, monkeypatch):
+    """Through `enable_compilation_cache`: $GRAZEJAX_COMPILATION_CACHE moves it or turns
+    it off."""
+    import jax
+    from jax.experimental.compilation_cache import compilation_cache
+
+    _made_up_claims(monkeypatch)
+    monkeypatch.setenv("GRAZEJAX_COMPILATION_CACHE", "off")
+    saved = jax.config.jax_compilation_cache_dir
+    try:
+        assert _cli.main(["reproduce", "--out", str(tmp_path / "a"), "--only", "claims"]) == 0
+        assert jax.config.jax_compilation_cache_dir == saved  # "off": nothing changed
+        jax.config.update("jax_compilation_cache_dir", None)
+        monkeypatch.setenv("GRAZEJAX_COMPILATION_CACHE", str(tmp_path / "xla"))
+        assert _cli.main(["reproduce", "--out", str(tmp_path / "b"), "--only", "claims"]) == 0
+        assert jax.config.jax_compilation_cache_dir == str(tmp_path / "xla")
+    finally:
+        jax.config.update("jax_compilation_cache_dir", saved)
+        compilation_cache.reset_cache()  # JAX reopens the test run's folder at its next compile
 
 
 @pytest.mark.slow  # the whole table: about 2-3 minutes on two cores
@@ -277,5 +342,8 @@ def test_reproduce_claims_table(tmp_path, capsys):
     assert claims["summary"]["reasons_inconsistent"] == []
     printed = capsys.readouterr().out
     assert "[claims 1/" in printed and "claims:" in printed
+    from grazejax.paper.report import claims_tally
+
+    assert printed.rstrip().splitlines()[-1] == claims_tally(claims["summary"])
     md = (out / "report.md").read_text()
     assert "## Claims of the paper, checked" in md and "| ex1dof.A5 |" in md

@@ -18,6 +18,34 @@ def write_report(out: Path, report: dict) -> None:
     (out / "report.md").write_text(_markdown(report))
 
 
+def claims_tally(summary: dict) -> str:
+    """The claims table in one line, the last one `grazejax reproduce` prints: claims
+    checked, independent checks that agree with grazejax, and printed values that differ
+    from the computed ones (expected: `reason` explains each row's difference).
+
+    `summary`: `compute_claims(...)["summary"]`.
+    """
+    s = summary
+    checked = s["rows"] - s["errors"]
+    no_check = checked - s["checks_consistent"] - s["checks_inconsistent"]
+    text = (f"claims: {checked} checked; an independent check agrees with grazejax's value "
+            f"in {s['checks_consistent']}")
+    if s["checks_inconsistent"]:
+        text += f", NOT in {s['checks_inconsistent']}"
+    if no_check:
+        text += f" ({no_check} without one)"
+    text += f"; {s['differs']} differ from the value printed in the paper"
+    if s["differs"]:
+        text += (" (expected: many of the paper's printed numbers are wrong or approximate; "
+                 "report.md gives the reason for each)")
+    if s["errors"]:
+        text += f"; {s['errors']} could not be computed"
+    if s.get("reasons_inconsistent"):
+        text += ("; the typed-in reason does not fit the computed verdict in "
+                 + ", ".join(s["reasons_inconsistent"]))
+    return text + "."
+
+
 def _md_cell(text) -> str:
     return str(text).replace("|", "\\|").replace("\n", " ")
 

@@ -32,7 +32,7 @@ import jax
 
 from .claims import compute_claims
 from .figures import FIGURES
-from .report import write_report
+from .report import claims_tally, write_report
 
 DEFAULT_OUT = "grazejax-output"
 CLAIMS = "claims"  # the name that selects the claims table (`--only claims`)
@@ -138,4 +138,6 @@ def reproduce(out_dir=DEFAULT_OUT, only: Sequence[str] | None = None,
     write_report(out, report)
     say(f"report: {out / 'report.md'} and {out / 'report.json'} "
         f"({report['wall_seconds']:.1f} s)")
+    if claims is not None:
+        say(claims_tally(claims["summary"]))
     return report
