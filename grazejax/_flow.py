@@ -1,8 +1,9 @@
 """The free flow x' = f(t, x) between two times, without impacts: defined once for every
 analysis (W-maps, meeting times, variational equations, the period map's closing hop).
 
-- `free_flow`: the adaptive flight of `simulate` (same solver, tolerances, step control),
-  between two possibly traced times, in either direction.
+- `free_flow`: the adaptive flight of `simulate` (same solver, tolerances, step control,
+  and the scene's `project` after every step), between two possibly traced times, in
+  either direction.
 - `short_free_flow`: a fixed-step RK4 hop over a short time δ, smooth in δ, for Newton
   solves that need the flow over a small, changing gap (the period map).
 """
@@ -43,9 +44,25 @@ class _Rescaled(eqx.Module):
         return span * self.vector_field(t_a + span * s, y, args)
 
 
-def free_flow(vector_field, x, t_a, t_b, args, kw):
-    """`(x(t_b), status)` for x' = f from (t_a, x), without impacts (either direction)."""
-    scene = Scene(_Rescaled(vector_field), [])
+class _RescaledProjection(eqx.Module):
+    """A scene's `project(t, x, args)` in the clock of `_Rescaled`: at s ∈ [0, 1], the
+    time t_a + (t_b − t_a) s."""
+
+    project: Any = eqx.field(static=True)
+
+    def __call__(self, s, y, params):
+        t_a, t_b, args = params
+        return self.project(t_a + (t_b - t_a) * s, y, args)
+
+
+def free_flow(flow: Scene, x, t_a, t_b, args, kw):
+    """`(x(t_b), status)` for x' = f from (t_a, x), without impacts (either direction).
+
+    `flow` is a scene whose surfaces are ignored: its field, and its `project`, applied
+    after every step as `simulate` applies it, so that an analysis's flights (a W-map's,
+    a variational flight's) are the flights of the runs they linearise."""
+    project = None if flow.project is None else _RescaledProjection(flow.project)
+    scene = Scene(_Rescaled(flow.vector_field), [], project=project)
     sol = simulate(scene, x, 0.0, 1.0, (t_a, t_b, args), **flight_kwargs(kw))
     return sol.x_final, sol.status
 

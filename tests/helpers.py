@@ -57,6 +57,28 @@ def rotation_field(t, x, args):
     return jnp.stack([x[1], -x[0]])
 
 
+def clockwise(phi):
+    """The rotation by −phi: the flow of `rotation_field` over a time phi."""
+    c, s = math.cos(phi), math.sin(phi)
+    return np.array([[c, s], [-s, c]])
+
+
+def projected_circle_scene():
+    """`rotation_field` on its invariant unit circle, kept there by `project` (x/|x|), with
+    a wall Φ = x2 met downward at angle 0 whose jump turns the state on by args["alpha"]
+    (J = the rotation by −α, 0 < α < π). From x0 on the circle at angle θ0 ∈ (0, π), for
+    θ0 < t1 < θ0 + 2π − α: one impact at t = θ0 and x(t1) = R(−(t1 + α)) x0/|x0|, so
+    ∂x(t1)/∂x0 = R(−(t1 + α))(I − x0 x0ᵀ) (the projection's Jacobian on the circle;
+    R(−(t1 + α)) without it) and ∂x(t1)/∂α = (sin(θ0 − t1 − α), −cos(θ0 − t1 − α))."""
+
+    def turn(t, x, args):
+        c, s = jnp.cos(args["alpha"]), jnp.sin(args["alpha"])
+        return jnp.stack([c * x[0] + s * x[1], -s * x[0] + c * x[1]])
+
+    wall = gj.Surface(phi=lambda t, x, args: x[1], jump=turn)
+    return gj.Scene(rotation_field, [wall], project=lambda t, x, args: x / jnp.linalg.norm(x))
+
+
 def free_fall_scene(restitution=0.8):
     """x' = v, v' = a (args["a"]) above a floor Φ = x; polynomial, so RK is exact."""
 

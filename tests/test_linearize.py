@@ -30,7 +30,7 @@ from grazejax._linearize import (
     w_map,
 )
 
-from .helpers import central_differences, free_fall_scene
+from .helpers import central_differences, clockwise, free_fall_scene, projected_circle_scene
 
 TIGHT = dict(rtol=1e-12, atol=1e-12)
 FREE_FALL = free_fall_scene(restitution=0.8)
@@ -215,6 +215,22 @@ def test_variational_system_equals_jacfwd_and_liouville(orbex2_run):
     np.testing.assert_allclose(np.linalg.det(np.asarray(v.saltations[:k])), dets, rtol=1e-10)
     expected = np.prod(dets) * math.exp(0.001 * 10.0)
     np.testing.assert_allclose(np.linalg.det(np.asarray(r.jacobian)), expected, rtol=1e-8)
+
+
+def test_variational_flights_are_projected_as_the_run_is():
+    """A scene's `project` acts on the variational system's flights as on the run: on the
+    kicked circle (`projected_circle_scene`) U(t1) = R(−(t1 + α))(I − x0 x0ᵀ), the
+    projection's Jacobian on the circle after the flow's (unprojected flights would give
+    the rotation alone, of rank 2)."""
+    theta0, t1, alpha = 1.0, 4.0, 0.3
+    x0 = np.array([math.cos(theta0), math.sin(theta0)])
+    v = variational_transition(projected_circle_scene(), x0, 0.0, t1,
+                               {"alpha": jnp.asarray(alpha)}, **TIGHT)
+    assert int(v.status) == DerivativeStatus.OK and int(v.num_impacts) == 1
+    np.testing.assert_allclose(v.impact_times[0], theta0, rtol=1e-12)
+    np.testing.assert_allclose(v.x_final, clockwise(t1 + alpha) @ x0, atol=1e-11)
+    exact = clockwise(t1 + alpha) @ (np.eye(2) - np.outer(x0, x0))
+    np.testing.assert_allclose(v.transition, exact, atol=1e-10)
 
 
 # ------------------------------------------------------ forward-mode gradients -----

@@ -41,7 +41,13 @@ import pytest
 import grazejax as gj
 from grazejax import examples as ex
 
-from .helpers import central_differences, dip_start, free_fall_scene
+from .helpers import (
+    central_differences,
+    clockwise,
+    dip_start,
+    free_fall_scene,
+    projected_circle_scene,
+)
 
 TOL = 1e-12
 TIGHT = dict(rtol=TOL, atol=TOL)
@@ -220,6 +226,38 @@ def test_wall_saltation_direct_adjoint():
     exact = wall_jacobian_exact(WALL_X0, WALL_T)
     assert_close(jax.jit(jax.jacrev(run))(x0), exact, EXACT)
     assert_close(jax.jit(jax.jacfwd(run))(x0), exact, EXACT)
+
+
+# ------------------------------------------------------- projected flow (Scene.project) ----
+
+CIRCLE = projected_circle_scene()
+CIRCLE_THETA0, CIRCLE_T = 1.0, 4.0  # one impact, at t = θ0
+CIRCLE_P = np.array([math.cos(CIRCLE_THETA0), math.sin(CIRCLE_THETA0), 0.3])  # (x0, α)
+
+
+def circle_final(p, adjoint):
+    sol = gj.simulate(CIRCLE, p[:2], 0.0, CIRCLE_T, {"alpha": p[2]}, adjoint=adjoint,
+                      max_impacts=4, **TIGHT)
+    return sol.x_final
+
+
+def test_projected_run_reverse_forward_exact_differences():
+    """Through `project` (x/|x| after every step) and an impact: x(t1) = R(−(t1 + α)) x0/|x0|,
+    so ∂x(t1)/∂x0 = R(−(t1 + α))(I − x0 x0ᵀ) and ∂x(t1)/∂α = (sin(θ0 − t1 − α),
+    −cos(θ0 − t1 − α)) (`projected_circle_scene`)."""
+    p = jnp.asarray(CIRCLE_P)
+    x0, alpha = CIRCLE_P[:2], CIRCLE_P[2]
+    angle = CIRCLE_THETA0 - CIRCLE_T - alpha
+    exact = np.column_stack([clockwise(CIRCLE_T + alpha) @ (np.eye(2) - np.outer(x0, x0)),
+                             [math.sin(angle), -math.cos(angle)]])
+    reverse = jax.jit(jax.jacrev(lambda q: circle_final(q, RCA)))(p)
+    forward_and_value = jacfwd_and_value(lambda q: circle_final(q, None))
+    forward, value = forward_and_value(p)
+    np.testing.assert_allclose(value, clockwise(CIRCLE_T + alpha) @ x0, atol=EXACT)
+    assert_close(reverse, forward, MODES)
+    assert_close(reverse, exact, EXACT)
+    primal = lambda q: forward_and_value(q)[1]  # noqa: E731
+    assert_close(reverse, central_differences(primal, CIRCLE_P, FD_STEP), FD)
 
 
 # ------------------------------------------------------------ forced oscillator -----------

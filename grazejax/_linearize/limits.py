@@ -228,7 +228,7 @@ def one_sided_jacobians(
 
 @single_run_jit
 def _upstream(scene, x, t, window, args, kw):
-    return free_flow(scene.vector_field, x, t, t - window, args, kw)
+    return free_flow(scene, x, t, t - window, args, kw)
 
 
 def _synchronised_flow_jacobians(scene, t, xs, args, window, kw):

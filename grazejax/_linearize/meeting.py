@@ -105,7 +105,7 @@ def _meet(scene: Scene, i: int, t, x, args, lookback: float, horizon, kw):
         # Γ_i), and a run never impacts at its start time, so a point *on* Γ_i needs a
         # start upstream of it to have its τ = t found.
         t_start = t - lookback
-        y, flow_status = free_flow(scene.vector_field, x, t, t_start, args, kw)
+        y, flow_status = free_flow(scene, x, t, t_start, args, kw)
     else:
         t_start, y, flow_status = t, x, jnp.array(int(Status.SUCCESS))
     sol = simulate(
@@ -232,7 +232,7 @@ def _w_value(scene, i, t, x, args, lookback, horizon, kw):
     tau, x_meet, kind, met, ok_run, _ = _meet(scene, i, t, x, args, lookback, horizon, kw)
     x_post = surface.jump(tau, x_meet, args)
     # ψ: from (τ, J(ξ(τ))) back to θ = t, without impacts (eq. W-map).
-    back, back_status = free_flow(scene.vector_field, x_post, tau, t, args, kw)
+    back, back_status = free_flow(scene, x_post, tau, t, args, kw)
     value = jnp.where(met, back - x, jnp.zeros_like(x))
     ok_run = ok_run & (simulation_ok(back_status) | ~met)
     return value, (tau, x_meet, kind, met, ok_run)
@@ -279,17 +279,16 @@ def w_map(
 @single_run_jit
 def _closed_form_impl(scene, i, t, x, tau, args, kw):
     surface = scene.surfaces[i]
-    f = scene.vector_field
 
     def to_tau(x_):
-        x1, status = free_flow(f, x_, t, tau, args, kw)
+        x1, status = free_flow(scene, x_, t, tau, args, kw)
         return x1, (x1, status)
 
     X, (xi, status_a) = jax.jacfwd(to_tau, has_aux=True)(x)
     salt = saltation_core(scene, i, tau, xi, args)
 
     def back(y_):
-        y1, status = free_flow(f, y_, tau, t, args, kw)
+        y1, status = free_flow(scene, y_, tau, t, args, kw)
         return y1, (y1, status)
 
     Y, (_, status_b) = jax.jacfwd(back, has_aux=True)(salt.x_post)

@@ -32,7 +32,9 @@ class Variational(eqx.Module):
     - `x_final`: the run's final state.
     - `saltations`: S_i per impact, shape `(max_impacts, n, n)` (identity past `num_impacts`).
     - `jump_matrices`: B_i = S_i − I, same shape.
-    - `trace_integral`: ∫ tr A(t) dt over the run (Liouville: det U = Π det S_i · e^∫trA).
+    - `trace_integral`: ∫ tr A(t) dt over the run (Liouville: det U = Π det S_i · e^∫trA,
+      for a scene without `project`: with one, U's flights are projected as the run's are,
+      U ↦ DP(x) U after each step, and U is singular across the manifold).
     - `impact_times`, `num_impacts`: from the run.
     - `status`: a [`grazejax.DerivativeStatus`][] code (GRAZING if an impact was tangential:
       its B_i is O, the (N2) value).
@@ -60,6 +62,21 @@ class _Augmented(eqx.Module):
         x, U = z[:n], z[n : n + n * n].reshape(n, n)
         fx, A = self.vector_field(t, x, args), jax.jacfwd(self.vector_field, argnums=1)(t, x, args)
         return jnp.concatenate([fx, (A @ U).reshape(-1), jnp.trace(A)[None]])
+
+
+class _AugmentedProjection(eqx.Module):
+    """A scene's `project` P on the augmented state: (x, U, ∫ tr A) → (P(x), DP(x) U,
+    ∫ tr A), the map a step's tangents go through where the run itself is projected
+    (`jax.jacfwd` of `simulate` applies DP(x) to them after each step)."""
+
+    project: Any = eqx.field(static=True)
+
+    def __call__(self, t, z, args):
+        n = _variational_state_size(z.shape[0])
+        x, U = z[:n], z[n : n + n * n].reshape(n, n)
+        x1, dU = jax.vmap(lambda u: jax.jvp(lambda y: self.project(t, y, args), (x,), (u,)),
+                          in_axes=1, out_axes=(None, 1))(U)
+        return jnp.concatenate([x1, dU.reshape(-1), z[n + n * n :]])
 
 
 def _variational_state_size(m: int) -> int:
@@ -100,12 +117,16 @@ def _variational_impl(scene, x0, t0, t1, args, kw):
         return S, grazing, undefined
 
     saltations, grazing, undefined = jax.vmap(saltation_of)(rows)
-    augmented = _Augmented(scene.vector_field)
+    project = None if scene.project is None else _AugmentedProjection(scene.project)
+    augmented = Scene(_Augmented(scene.vector_field), project=project)
 
     def segment(carry, j):
         U, trace = carry
         z0 = jnp.concatenate([x_starts[j], U.reshape(-1), jnp.zeros((1,), x0.dtype)])
         z1, status = free_flow(augmented, z0, starts[j], ends[j], args, kw)
+        # The segments past the last impact are empty, and start from a placeholder state
+        # (x0): they leave U as it is (a projection would map it onto x0's tangent space).
+        z1 = jnp.where(starts[j] == ends[j], z0, z1)
         U1 = z1[n : n + n * n].reshape(n, n)
         trace = trace + z1[-1]
         apply = j < max_impacts

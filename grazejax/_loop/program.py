@@ -330,7 +330,12 @@ def _next_state(ctx: LoopContext, c: LoopState, taken: Step, found: Detection,
         controller_state=jax.tree.map(
             lambda a, b: jnp.where(c.landing, b, a), taken.controller_state, c.controller_state
         ),
-        made_jump=pick(False, landed.made_jump, c.made_jump, c.made_jump),
+        # After a step that the scene's `project` ended, the next one evaluates its first
+        # stage afresh, as after a jump: an FSAL solver's stored last stage is f at the
+        # unprojected end, and so is its tangent, which lacks the projection's Jacobian
+        # (derivatives through `project` would carry, from every step's first stage, the
+        # part of the tangent that the projection removes from the state).
+        made_jump=pick(ctx.project is not None, landed.made_jump, c.made_jump, c.made_jump),
         restart=jnp.where(accept_free, False, jnp.where(c.landing, landed.restart, c.restart)),
         flight_scale=jnp.where(
             accept_free, jnp.maximum(c.flight_scale, jnp.abs(y1)), landed.flight_scale
