@@ -12,6 +12,7 @@ from jaxtyping import Array, Bool
 from .._custom_types import BoolScalar, RealScalar
 from .compact import per_lane
 from .context import LoopContext
+from .envelope import lower_bound
 from .events import Contact, locate
 from .gaps import step_floor
 from .state import LoopState
@@ -28,6 +29,9 @@ class Detection(NamedTuple):
     touch: Bool[Array, "m signs"]  # tangential contacts
     boundary: Bool[Array, "m signs"]  # contacts on ∂Γ
     releasing: BoolScalar  # the event is the end of sliding
+    # the curvature bound proves no earlier contact before each pending one
+    # (`_verified`); where not, the step is retaken shorter instead of landing
+    verified: BoolScalar
 
 
 def detect(ctx: LoopContext, c: LoopState, step: Step, slides: bool = True) -> Detection:
@@ -40,15 +44,15 @@ def detect(ctx: LoopContext, c: LoopState, step: Step, slides: bool = True) -> D
         # Only the lanes with a candidate pay for the searches under vmap (`compact.py`).
         inputs = SearchInputs(
             step.interp, step.y1, c.args, c.t_hi, c.t_lo, c.restart, c.flight_scale,
-            gaps.ends, gaps.bounds, gaps.candidate,
+            gaps.ends, gaps.bounds, gaps.candidate, gaps.curvature,
         )
-        found, times, touch, boundary = per_lane(
+        found, times, touch, boundary, verified = per_lane(
             functools.partial(_search, ctx), candidate, inputs,
             lambda _: _nothing_found(ctx),
         )
         found = found & candidate & ~c.stick[:, None]
     else:
-        found, times, touch, boundary = _nothing_found(ctx)
+        found, times, touch, boundary, verified = _nothing_found(ctx)
     times = jnp.where(found, times, jnp.inf)
     event = jnp.any(found)
     # (A scene without surfaces is a plain ODE solve: no contact, ever.)
@@ -65,7 +69,8 @@ def detect(ctx: LoopContext, c: LoopState, step: Step, slides: bool = True) -> D
         event = event | release
     simultaneous = 1e3 * ctx.eps * (jnp.abs(first) + (sb - sa))
     pending = found & (times <= first + simultaneous) & ~releasing
-    return Detection(detecting, event, first, pending, touch, boundary, releasing)
+    verified = jnp.all(verified | ~pending)
+    return Detection(detecting, event, first, pending, touch, boundary, releasing, verified)
 
 
 class SearchInputs(NamedTuple):
@@ -79,9 +84,10 @@ class SearchInputs(NamedTuple):
     t_lo: RealScalar
     restart: Bool[Array, " m"]
     flight_scale: Array
-    ends: tuple  # per piece, per side: the halves' `StepEnds`
-    bounds: tuple  # (sa, midpoint, sb)
-    candidate: tuple  # per piece, per side, per half: it may hold a contact
+    ends: tuple  # per piece, per side: the parts' `StepEnds`
+    bounds: tuple  # the parts' ends, from sa to sb
+    candidate: tuple  # per piece, per side, per part: it may hold a contact
+    curvature: tuple  # per piece, per side: the gap's curvature bound (θ units)
 
 
 def _search(ctx: LoopContext, inputs: SearchInputs):
@@ -91,74 +97,115 @@ def _search(ctx: LoopContext, inputs: SearchInputs):
     y_of = inputs.interp.evaluate
     mask_shape = ctx.mask_shape
     found = jnp.zeros(mask_shape, bool)
+    verified = jnp.ones(mask_shape, bool)
     times = jnp.full(mask_shape, jnp.inf, ctx.dtype)
     touch = jnp.zeros(mask_shape, bool)
     boundary = jnp.zeros(mask_shape, bool)
     for i, piece in enumerate(ctx.pieces):
-        for k, (sign, halves) in enumerate(zip(piece.signs, inputs.ends[i], strict=True)):
+        for k, (sign, parts) in enumerate(zip(piece.signs, inputs.ends[i], strict=True)):
             g = ctx.gap_along(piece, sign, y_of, t_hi, t_lo, args_)
 
             def inside(s, piece=piece):
                 return piece.inside(ctx.abs_time(s, t_hi, t_lo), y_of(s), args_, ctx.state_tol)
 
-            sa, _, sb = inputs.bounds
+            sa, sb = inputs.bounds[0], inputs.bounds[-1]
             floor = step_floor(ctx, piece, t_hi, t_lo, args_, inputs.flight_scale, sa, sb,
-                               inputs.y1, halves[0].slope_start, halves[1].slope_end)
-            contact, on_boundary = _first_contact(
-                g, inside, halves, inputs.bounds, inputs.restart[i], floor,
-                inputs.candidate[i][k], ctx.event_root_finder,
+                               inputs.y1, parts[0].slope_start, parts[-1].slope_end)
+            curvature = inputs.curvature[i][k] / (sb - sa) ** 2  # (θ units to s units)
+            contact, on_boundary, sure = _first_contact(
+                g, inside, parts, inputs.bounds, inputs.restart[i], floor,
+                inputs.candidate[i][k], ctx.event_root_finder, curvature,
             )
+            verified = verified.at[i, k].set(sure)
             found = found.at[i, k].set(contact.found)
             times = times.at[i, k].set(jnp.where(contact.found, contact.time, jnp.inf))
             touch = touch.at[i, k].set(contact.touch)
             boundary = boundary.at[i, k].set(on_boundary)
-    return found, times, touch, boundary
+    return found, times, touch, boundary, verified
 
 
-def _first_contact(g, inside, halves, bounds, restart, floor, flags, finder):
-    """The first contact inside the piece, over the step's halves in time order:
-    `(Contact, on ∂Γ)`. A half that `is_candidate` did not flag is not searched; a dip
-    that stays above the floor, or a contact outside the piece, moves on to the second.
-    (One copy of `locate` in a loop of at most two rounds, not two copies: its root
-    searches are the largest part of the program.)"""
-    first_flag, second_flag = flags
-    sa, s_mid, sb = bounds
+def _first_contact(g, inside, parts, bounds, restart, floor, flags, finder, curvature):
+    """The first contact inside the piece, over the step's parts in time order:
+    `(Contact, on ∂Γ)`. A part that `is_candidate` did not flag is not searched; a dip
+    that stays above the floor, or a contact outside the piece, moves on to the next
+    flagged part. (One copy of `locate` in a loop over the parts, not one per part: its
+    root searches are the largest part of the program.) The third result says whether
+    the curvature bound proves the contact the part's first (`_verified`).
 
-    def pick(j, first, second):
-        return jax.tree.map(lambda a, b: jnp.where(j == 0, a, b), first, second)
+    A restart state is on its surface to within the floor, not exactly: g(sa) may be up
+    to a floor above 0. The guard G(s) = g(s)/(s − sa) removes a root at sa only, so a
+    flight that leaves into Φ < 0 from g(sa) > 0 still has g's root ulps after sa. In the
+    first part the guard hides it (G(sa) = ġ(sa) ≤ 0: no crossing is tested for); a later
+    part starts from a value with g's sign, and there the same root read as a new
+    crossing wherever the step was short (a run's last step, clipped at t1, re-fired every
+    surface met a few ulps apart: SciML's `event_repeat`). So on a restart step that left
+    downward, a later part that starts on the free side within the round-off band of the
+    start (g ≤ max(g(sa), 0) + floor), still moving in, holds only the start's own root
+    (a flight that rose out of the band, or turned back up, is still searched)."""
+    sa, sb = bounds[0], bounds[-1]
+    count = len(parts)
+    flags = jnp.stack(flags)
+    lows, highs = jnp.stack(bounds[:-1]), jnp.stack(bounds[1:])
+    stacked = jax.tree.map(lambda *xs: jnp.stack(xs), *parts)
+
+    def next_flagged(j):
+        """The first flagged part at or after j (`count` where none)."""
+        later = flags & (jnp.arange(count) >= j)
+        return jnp.where(jnp.any(later), jnp.argmax(later), count)
 
     def searching(carry):
-        j, contact, _ = carry
-        return (j < 2) & ~contact.found
+        j, contact, _, _ = carry
+        return (j < count) & ~contact.found
+
+    band = jnp.maximum(g(sa), 0.0) + floor
+    left_downward = restart & (parts[0].g_start <= 0)
 
     def search(carry):
-        j, _, _ = carry
-        e = pick(j, *halves)
-        s_lo, s_hi = jnp.where(j == 0, sa, s_mid), jnp.where(j == 0, s_mid, sb)
-        contact = locate(g, sa, s_lo, s_hi, e, restart, floor, finder)
+        j, _, _, _ = carry
+        e = jax.tree.map(lambda x: x[j], stacked)
+        contact = locate(g, sa, lows[j], highs[j], e, restart, floor, finder)
         in_piece, on_boundary = inside(contact.time)
-        contact = contact._replace(found=contact.found & in_piece)
-        after = jnp.where((j == 0) & second_flag, 1, 2)
-        return after, contact, on_boundary
+        g_lo = g(lows[j])
+        start_root = left_downward & (j > 0) & (g_lo > 0) & (g_lo <= band) & (e.slope_start <= 0)
+        contact = contact._replace(found=contact.found & in_piece & ~start_root)
+        sure = _verified(g, e.s_start, contact, restart & (j == 0), floor, curvature)
+        return next_flagged(j + 1), contact, on_boundary, sure
 
     no = jnp.array(False)
-    start = jnp.where(first_flag, 0, jnp.where(second_flag, 1, 2))
-    _, contact, on_boundary = lax.while_loop(
-        searching, search, (start, Contact(no, sb, no), no)
+    _, contact, on_boundary, sure = lax.while_loop(
+        searching, search, (next_flagged(0), Contact(no, sb, no), no, jnp.array(True))
     )
-    return contact, on_boundary
+    return contact, on_boundary, sure | ~contact.found
+
+
+def _verified(g, s_start, contact, starts_on_surface, floor, curvature):
+    """Whether the curvature bound proves that g stays above −floor on the part from
+    `s_start` to the contact located in it (`envelope.lower_bound` with the gap's value
+    and rate at both ends): a part flagged by its end tests may hold several roots, and
+    the root search returns one of them, not necessarily the first. Touches (the minimum
+    of a dip within the floor) are taken as found. Parts that start inside Φ < 0 (humps)
+    have no earlier contact to miss before they rise."""
+    g0, d0 = jax.jvp(g, (s_start,), (jnp.ones_like(s_start),))
+    gt, dt = jax.jvp(g, (contact.time,), (jnp.ones_like(contact.time),))
+    width = jnp.maximum(contact.time - s_start, 0.0)
+    whole, after_start = lower_bound(g0, gt, d0, dt, width, curvature)
+    low = jnp.where(starts_on_surface, after_start, whole)
+    from_free_side = jnp.where(starts_on_surface, d0 > 0, g0 > 0)
+    slack_small = 0.125 * curvature * width * width <= floor
+    return ~contact.found | contact.touch | ~from_free_side | slack_small | (low >= -floor)
 
 
 def nothing_detected(ctx: LoopContext) -> Detection:
     """The `Detection` of a step that does not search (a landing step)."""
-    found, _, touch, boundary = _nothing_found(ctx)
+    found, _, touch, boundary, _ = _nothing_found(ctx)
     no = jnp.array(False)
-    return Detection(no, no, jnp.array(jnp.inf, ctx.dtype), found, touch, boundary, no)
+    return Detection(no, no, jnp.array(jnp.inf, ctx.dtype), found, touch, boundary, no,
+                     jnp.array(True))
 
 
 def _nothing_found(ctx: LoopContext):
     mask_shape = ctx.mask_shape
     return (
         jnp.zeros(mask_shape, bool), jnp.full(mask_shape, jnp.inf, ctx.dtype),
-        jnp.zeros(mask_shape, bool), jnp.zeros(mask_shape, bool),
+        jnp.zeros(mask_shape, bool), jnp.zeros(mask_shape, bool), jnp.ones(mask_shape, bool),
     )

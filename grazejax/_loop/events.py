@@ -49,6 +49,9 @@ LIFT_FRACTION = 2.0**-20
 CHECK_POINTS = (2.0**0.5 - 1.0, 0.5 * (5.0**0.5 - 1.0))
 # The same check points as fractions of the whole step.
 CHECK_FRACTIONS = (0.5 * CHECK_POINTS[0], 0.5 + 0.5 * CHECK_POINTS[1])
+# Every sample with a value and a rate, in time order: they cut the step into the four
+# parts that the search visits in turn (`split_parts`, `envelope.py`).
+PART_FRACTIONS = (0.0, CHECK_FRACTIONS[0], 0.5, CHECK_FRACTIONS[1], 1.0)
 # A half whose samples are all on one side of Φ = 0 and which no test flags must clear
 # Φ = 0 by this many times its model's error.
 CLEARANCE = 4.0
@@ -149,6 +152,22 @@ def split_step_ends(ends: StepEnds, s_mid, g_mid, slope_mid, sa, restart):
     first = StepEnds(ends.g_start, G_mid, ends.slope_start, slope_mid, ends.s_start)
     second = StepEnds(G_mid, ends.g_end, slope_mid, ends.slope_end, s_mid)
     return first, second
+
+
+def split_parts(ends: StepEnds, inner, sa, restart):
+    """The `StepEnds` of the step's parts between consecutive samples, given `inner`, the
+    `(s, g, ġ)` of each interior sample in time order (`PART_FRACTIONS`). Values are
+    guarded as in `split_step_ends`; the restart guard and the lift-off belong to the
+    first part."""
+    parts = []
+    g_start, slope_start, s_start = ends.g_start, ends.slope_start, ends.s_start
+    for s, g, slope in inner:
+        apart = s > sa
+        G = jnp.where(restart & apart, g / jnp.where(apart, s - sa, 1.0), g)
+        parts.append(StepEnds(g_start, G, slope_start, slope, s_start))
+        g_start, slope_start, s_start = G, slope, s
+    parts.append(StepEnds(g_start, ends.g_end, slope_start, ends.slope_end, s_start))
+    return tuple(parts)
 
 
 def is_far(values, slopes):
@@ -277,8 +296,13 @@ def gap_resolution(g, d, checks, flagged, floor, restart, known, g_start):
         )
         ratio = jnp.where(in_order, ratio, jnp.maximum(ratio, 16.0))
         worst = jnp.maximum(worst, ratio)
-    shrink = jnp.where(worst <= 16, 0.5, jnp.where(worst <= 256, 0.25, 0.1))
-    return resolved, shrink
+    return resolved, shrink_for(worst)
+
+
+def shrink_for(worst):
+    """The factor by which to retake a step whose worst misfit is `worst` times what is
+    allowed, for misfits that shrink like h⁴: 0.5 to 16, 0.25 to 256, else 0.1."""
+    return jnp.where(worst <= 16, 0.5, jnp.where(worst <= 256, 0.25, 0.1))
 
 
 def _side(value, floor):

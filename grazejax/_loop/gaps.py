@@ -20,13 +20,17 @@ from .._custom_types import BoolScalar, RealScalar
 from .._geometry import FLOOR_ULPS
 from .._roots import safe_divide
 from .context import LoopContext
+from .envelope import clear_of_surface, curvature_bound, part_resolution
 from .events import (
     CHECK_FRACTIONS,
     LIFT_FRACTION,
+    PART_FRACTIONS,
     gap_resolution,
     is_candidate,
     is_clear,
     is_far,
+    shrink_for,
+    split_parts,
     split_step_ends,
     step_ends,
 )
@@ -40,13 +44,14 @@ class GapSamples(NamedTuple):
     """The gap of every piece and side along one step (scalars per lane: under `vmap`
     every array op of a step is one more kernel in every lane's every step)."""
 
-    # per piece, per side: the two halves' `StepEnds`
+    # per piece, per side: the four parts' `StepEnds`
     ends: tuple
-    bounds: tuple  # (sa, midpoint, sb) in local time
+    bounds: tuple  # the parts' ends in local time (`PART_FRACTIONS`)
     resolved: BoolScalar  # the samples resolve every gap (`gap_resolution`)
     shrink: RealScalar  # where not: the factor by which to retake the step
-    candidate: tuple  # per piece, per side, per half: it may hold a contact (`is_candidate`)
+    candidate: tuple  # per piece, per side, per part: it may hold a contact (`is_candidate`)
     any_candidate: BoolScalar
+    curvature: tuple  # per piece, per side: the curvature bound (θ units, `envelope.py`)
 
 
 def sample_gaps(ctx: LoopContext, c: LoopState, sa, sb, y1, interp, stages, *,
@@ -69,13 +74,13 @@ def sample_gaps(ctx: LoopContext, c: LoopState, sa, sb, y1, interp, stages, *,
     else:
         at.update((theta, at_fraction(interp)(theta, sa, sb)) for theta in inner)
     step = _StepView(c, sa, sb, fraction_time(0.5, sa, sb), y1, at)
-    ends, candidates = [], []
+    ends, candidates, curvatures = [], [], []
     resolved, any_candidate = jnp.array(True), jnp.array(False)
     shrink = jnp.ones((), ctx.dtype)
     for i, piece in enumerate(ctx.pieces):
-        row, candidate_row = [], []
+        row, candidate_row, curvature_row = [], [], []
         for sign in piece.signs:
-            halves, flagged, far, verdict = _sample_one(ctx, step, i, piece, sign)
+            parts, flagged, far, verdict, curvature = _sample_one(ctx, step, i, piece, sign)
             # (a gap far from Φ = 0 on this step needs no verdict: most steps of a run)
             trivially = lambda: (jnp.array(True), jnp.array(1.0, ctx.dtype))  # noqa: E731
             some_lane = eqxi.unvmap_any(checking & ~far) if batched else checking & ~far
@@ -86,14 +91,17 @@ def sample_gaps(ctx: LoopContext, c: LoopState, sa, sb, y1, interp, stages, *,
             resolved = resolved & ok
             shrink = jnp.minimum(shrink, jnp.where(ok, 1.0, factor))
             flagged = tuple(flag & ~c.stick[i] for flag in flagged)
-            any_candidate = any_candidate | flagged[0] | flagged[1]
-            row.append(halves)
+            any_candidate = functools.reduce(operator.or_, flagged, any_candidate)
+            row.append(parts)
             candidate_row.append(flagged)
+            curvature_row.append(jax.lax.stop_gradient(curvature))
         ends.append(tuple(row))
         candidates.append(tuple(candidate_row))
+        curvatures.append(tuple(curvature_row))
+    bounds = tuple(fraction_time(theta, sa, sb) for theta in PART_FRACTIONS)
     return GapSamples(
-        tuple(ends), (sa, step.s_mid, sb), jax.lax.stop_gradient(resolved),
-        jax.lax.stop_gradient(shrink), tuple(candidates), any_candidate,
+        tuple(ends), bounds, jax.lax.stop_gradient(resolved),
+        jax.lax.stop_gradient(shrink), tuple(candidates), any_candidate, tuple(curvatures),
     )
 
 
@@ -109,11 +117,13 @@ class _StepView(NamedTuple):
 
 
 def _sample_one(ctx: LoopContext, step: _StepView, i: int, piece, sign):
-    """One piece's side: `(halves, flags, far, verdict)`, the halves' `StepEnds`, whether an
-    end test flags each half, whether the gap is far from Φ = 0 on the step (`is_far`,
-    `is_clear`: no verdict needed), and the resolution verdict as a function
-    (`gap_resolution`'s `(resolved, shrink)`), so the caller may compute it under a
-    `cond`."""
+    """One piece's side: `(parts, flags, far, verdict, K)`, the four parts' `StepEnds`
+    (`PART_FRACTIONS`), whether an end test flags each part, whether the gap is far from
+    Φ = 0 on the step (`is_far`, `is_clear` and the curvature bound's proof,
+    `envelope.clear_of_surface`: no verdict needed), and the resolution verdict as a
+    function (`gap_resolution`'s and `envelope.part_resolution`'s `(resolved, shrink)`),
+    so the caller may compute it under a `cond`, and the curvature bound K
+    (`envelope.curvature_bound`)."""
     c, sa, sb, h = step.c, step.sa, step.sb, step.sb - step.sa
 
     def gap(s, y):
@@ -127,10 +137,10 @@ def _sample_one(ctx: LoopContext, step: _StepView, i: int, piece, sign):
     whole = step_ends(rate, sa, sb, c.restart[i], g_a, g_b)
     g_mid, slope_mid = rate(0.5)
     halves = split_step_ends(whole, step.s_mid, g_mid, slope_mid, sa, c.restart[i])
-    flags = []
+    half_flags = []
     for e in halves:
         crossing, dip, hump = is_candidate(e)
-        flags.append(crossing | dip | hump)
+        half_flags.append(crossing | dip | hump)
     slopes = (whole.slope_start, slope_mid, whole.slope_end)
     # A gap that is not finite along the step (an image surface's far from it, through a
     # Newton inverse) has no contact to resolve.
@@ -138,11 +148,25 @@ def _sample_one(ctx: LoopContext, step: _StepView, i: int, piece, sign):
 
     # (outside `verdict`: a conditional that read the dense output would copy every
     # lane's stages into its branch at every step)
-    checks = tuple((value, h * slope) for value, slope in map(rate, CHECK_FRACTIONS))
+    check_rates = tuple(map(rate, CHECK_FRACTIONS))
+    checks = tuple((value, h * slope) for value, slope in check_rates)
     step_slopes = tuple(h * r for r in slopes)
+    # The four parts between the samples, searched in turn (`detect._first_contact`).
+    inner = (
+        (fraction_time(CHECK_FRACTIONS[0], sa, sb), *check_rates[0]),
+        (step.s_mid, g_mid, slope_mid),
+        (fraction_time(CHECK_FRACTIONS[1], sa, sb), *check_rates[1]),
+    )
+    parts = split_parts(whole, inner, sa, c.restart[i])
+    flags = tuple(functools.reduce(operator.or_, is_candidate(e)) for e in parts)
+    # Every sample in time order, values and slopes in θ, and the curvature bound.
+    values = (g_a, checks[0][0], g_mid, checks[1][0], g_b)
+    theta_slopes = (step_slopes[0], checks[0][1], step_slopes[1], checks[1][1], step_slopes[2])
+    curvature = curvature_bound(values, theta_slopes, PART_FRACTIONS)
     far = is_far((g_a, g_mid, g_b, *(v for v, _ in checks)),
                  (*step_slopes, *(d for _, d in checks)))
-    far = (far | is_clear((g_a, g_mid, g_b), step_slopes, checks)) & defined
+    far = far | is_clear((g_a, g_mid, g_b), step_slopes, checks)
+    far = far & clear_of_surface(values, theta_slopes, PART_FRACTIONS, curvature) & defined
 
     def verdict():
         floor = step_floor(ctx, piece, c.t_hi, c.t_lo, c.args, c.flight_scale, sa, sb,
@@ -152,13 +176,24 @@ def _sample_one(ctx: LoopContext, step: _StepView, i: int, piece, sign):
         tol = ctx.tol_a + ctx.tol_r * jnp.maximum(c.flight_scale, jnp.abs(step.y1))
         known = piece.floor(ctx.abs_time(sb, c.t_hi, c.t_lo), step.y1, c.args,
                             tol / (FLOOR_ULPS * ctx.eps))
+        known = jnp.maximum(known, floor)
         ok, factor = gap_resolution((g_a, g_mid, g_b), step_slopes, checks,
-                                    tuple(flags), floor, c.restart[i], jnp.maximum(known, floor),
+                                    tuple(half_flags), floor, c.restart[i], known,
                                     whole.g_start)
+        worst = jnp.zeros_like(g_a)
+        for j, flag in enumerate(flags):
+            resolved, ratio = part_resolution(
+                values[j], values[j + 1], theta_slopes[j], theta_slopes[j + 1],
+                PART_FRACTIONS[j + 1] - PART_FRACTIONS[j], curvature, floor, known, flag,
+                c.restart[i] & (j == 0),
+            )
+            ok = ok & resolved
+            worst = jnp.maximum(worst, ratio)
+        factor = jnp.minimum(factor, shrink_for(worst))
         # (the branches of the caller's `cond` must agree in type: float32 runs too)
         return ok | ~defined, jnp.asarray(factor, ctx.dtype)
 
-    return halves, tuple(flags), far, verdict
+    return parts, flags, far, verdict, curvature
 
 
 def step_floor(ctx: LoopContext, piece, t_hi, t_lo, args_, flight_scale, sa, sb, y1,

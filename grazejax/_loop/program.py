@@ -294,8 +294,14 @@ def _next_state(ctx: LoopContext, c: LoopState, taken: Step, found: Detection,
     located (retake the step up to it), a landing (the impact applied), or a rejection."""
     sa, sb, y1, h_next = taken.sa, taken.sb, taken.y1, taken.h_next
     accept_free = found.detecting & ~found.event  # accepted, no contact: move on
-    go_land = found.detecting & found.event  # contact located: retake the step up to it
-    reject = ~taken.keep & ~c.landing & ~c.done
+    located = found.detecting & found.event
+    go_land = located & found.verified  # contact located: retake the step up to it
+    # A contact the curvature bound does not prove first in its part: retake the step
+    # from sa, half as far as the contact, so that its parts shrink around the
+    # uncertain stretch (`detect._verified`); what follows is found on the way.
+    unsure = located & ~found.verified
+    h_next = jnp.where(unsure, jax.lax.stop_gradient(0.5 * (found.first - sa)), h_next)
+    reject = (~taken.keep | unsure) & ~c.landing & ~c.done
 
     save_index, save_xs = c.save_index, c.save_xs
     if ctx.ts is not None:
