@@ -72,9 +72,9 @@ class ConditionResult(eqx.Module):
 
 
 class ConditionReport(eqx.Module):
-    """Result of [`grazejax.check_conditions`][]; `str(report)` lists violations first.
+    """Result of `grazejax.check_conditions`; `str(report)` lists violations first.
 
-    **Fields:** `results` (a tuple of [`grazejax.ConditionResult`][]), `samples` (the
+    **Fields:** `results` (a tuple of `grazejax.ConditionResult`), `samples` (the
     number drawn per surface), `box` (the sampling box, shape `(n, 2)`), `t_range`.
     """
 
@@ -401,7 +401,7 @@ def check_conditions(
     - `flights`, `horizon`: free flights per surface for (C8)–(C10) (default 0: not
       tested; e.g. 64), each `horizon` long in each time direction.
 
-    **Returns:** a [`grazejax.ConditionReport`][]; `print(report)` lists violations first,
+    **Returns:** a `grazejax.ConditionReport`; `print(report)` lists violations first,
     `report.ok`, `report.holds("C4", 0)` and `report.violations` query it.
 
     **Example:**

@@ -1,7 +1,7 @@
 r"""Piecewise-smooth scenes: discrete modes, switching surfaces and Filippov sliding.
 
-A [`grazejax.PiecewiseScene`][] compiles a description in modes into an ordinary
-[`grazejax.Scene`][] whose state is y = (x, m): the physical state x followed by one float
+A `grazejax.PiecewiseScene` compiles a description in modes into an ordinary
+`grazejax.Scene` whose state is y = (x, m): the physical state x followed by one float
 component m, the index of the current mode. The mode is constant along a flight (its
 derivative is 0, so every Runge–Kutta stage sees the same m) and only a jump changes it, so
 the impact loop locates every mode change exactly as it locates an impact, lands it with a
@@ -28,7 +28,7 @@ from ._simulate import simulate
 
 
 class Mode(eqx.Module):
-    r"""One discrete mode of a [`grazejax.PiecewiseScene`][]: a name and its vector field.
+    r"""One discrete mode of a `grazejax.PiecewiseScene`: a name and its vector field.
 
     **Arguments:**
 
@@ -59,7 +59,7 @@ class Transition(eqx.Module):
     - `jump`: optional `jump(t, x, args) -> x`, the reset of x (default: identity, a pure
       mode switch; e.g. a rocking block's restitution law when the pivot changes).
     - `where`: optional `where(t, x, args) -> bool` bounding the guard (as in `Surface`).
-    - `name`: a label for the event log ([`grazejax.PiecewiseScene.events`][]).
+    - `name`: a label for the event log (`grazejax.PiecewiseScene.events`).
     """
 
     source: str = eqx.field(static=True)
@@ -107,7 +107,7 @@ class SwitchingSurface(eqx.Module):
 
 @dataclasses.dataclass(frozen=True)
 class Event:
-    """One row of a run's event log, read by [`grazejax.PiecewiseScene.events`][].
+    """One row of a run's event log, read by `grazejax.PiecewiseScene.events`.
 
     `label` is one of `"CROSS"` (a switching surface crossed), `"SLIDE"` (sliding starts),
     `"RELEASE"` (sliding ends), `"TRANSITION"` (a `Transition` fired) or `"IMPACT"` (one of
@@ -133,7 +133,7 @@ def _rate(phi, t, x, args, field):
 class PiecewiseScene(eqx.Module):
     r"""A piecewise-smooth system with discrete modes, compiled into an ordinary `Scene`.
 
-    The compiled [`grazejax.Scene`][] (`.scene`) acts on y = (x, m): m, the last
+    The compiled `grazejax.Scene` (`.scene`) acts on y = (x, m): m, the last
     component, is the mode's index (a float holding an exact integer). Its vector field is
     the field of mode m (`lax.switch` on m: a single run evaluates only that mode's field;
     under `vmap` XLA evaluates every branch and selects, so no other mode's field
@@ -146,11 +146,11 @@ class PiecewiseScene(eqx.Module):
 
     **Arguments:**
 
-    - `modes`: a sequence of [`grazejax.Mode`][] (the sliding modes of `switching` are
+    - `modes`: a sequence of `grazejax.Mode` (the sliding modes of `switching` are
       added after them).
-    - `transitions`: [`grazejax.Transition`][] guards.
-    - `switching`: [`grazejax.SwitchingSurface`][] surfaces (with Filippov sliding).
-    - `surfaces`: ordinary [`grazejax.Surface`][] pieces on x, active in every mode (their
+    - `transitions`: `grazejax.Transition` guards.
+    - `switching`: `grazejax.SwitchingSurface` surfaces (with Filippov sliding).
+    - `surfaces`: ordinary `grazejax.Surface` pieces on x, active in every mode (their
       jumps keep the mode).
 
     **Example:** the Coulomb friction oscillator x'' + x = −μ sign(x'):
@@ -311,8 +311,8 @@ class PiecewiseScene(eqx.Module):
         """The run's impact log as labelled events (outside `jit`; for a batch from
         `jax.vmap`, pass the `lane`).
 
-        Each logged row of `sol` (a [`grazejax.Solution`][] of `.scene`) becomes an
-        [`grazejax.Event`][]: `"SLIDE"` when the row enters a sliding mode, `"RELEASE"`
+        Each logged row of `sol` (a `grazejax.Solution` of `.scene`) becomes an
+        `grazejax.Event`: `"SLIDE"` when the row enters a sliding mode, `"RELEASE"`
         when it leaves one, `"CROSS"` for a crossing of a switching surface,
         `"TRANSITION"` or `"IMPACT"` otherwise; with the mode names before and after.
         """
@@ -446,7 +446,7 @@ def _lift_surface(surface: Surface) -> Surface:
 
 @dataclasses.dataclass(frozen=True)
 class FieldCheck:
-    """What [`grazejax.check_field_continuity`][] found.
+    """What `grazejax.check_field_continuity` found.
 
     `ok` is False when the vector field jumps along the trajectory away from every event of
     the scene; then `time` is the sample interval `(t_k, t_{k+1})` of the first jump,
@@ -474,18 +474,18 @@ def check_field_continuity(scene: Scene, x0, t0, t1, args=None, *, num_samples: 
     the scene, samples the field f along the computed trajectory at `num_samples` times,
     and compares f(t_{k+1}) − f(t_k) with the trapezoidal prediction from the Jacobian of
     f; sample intervals holding an event of the scene are skipped (mode changes of a
-    [`grazejax.PiecewiseScene`][] are events). A jump is a defect larger than half the
+    `grazejax.PiecewiseScene` are events). A jump is a defect larger than half the
     change of f and than √ε times its size.
 
     **Arguments:**
 
-    - `scene`, `x0`, `t0`, `t1`, `args`, `simulate_options`: as for [`grazejax.simulate`][].
+    - `scene`, `x0`, `t0`, `t1`, `args`, `simulate_options`: as for `grazejax.simulate`.
     - `num_samples`: sample times; jumps of f smaller than about the O(Δt³) defect of the
       smooth part are not seen.
     - `throw`: raise a `ValueError` naming the fix (default) instead of returning a
-      failing [`grazejax.FieldCheck`][].
+      failing `grazejax.FieldCheck`.
 
-    **Returns:** a [`grazejax.FieldCheck`][].
+    **Returns:** a `grazejax.FieldCheck`.
     """
     ts = jnp.linspace(t0, t1, num_samples)
     sol = simulate(scene, x0, t0, t1, args, saveat=ts, **simulate_options)

@@ -83,7 +83,7 @@ class Scene(eqx.Module):
 
     - `vector_field`: `vector_field(t, x, args) -> dx/dt` (diffrax's convention; autonomous
       systems ignore `t`).
-    - `surfaces`: a sequence of [`grazejax.Surface`][] pieces. Their order is the order in
+    - `surfaces`: a sequence of `grazejax.Surface` pieces. Their order is the order in
       which simultaneous impacts (within round-off of each other) are applied.
     - `project`: optional `project(t, x, args) -> x`, applied to the end state of every
       solver step: a map back onto an invariant manifold of the flow (a constraint, a
@@ -93,7 +93,7 @@ class Scene(eqx.Module):
       Jacobian projects onto the tangent space, where the flow's tangents already lie).
       E.g. one Gauss–Newton step onto {g = 0}: x − g(x)∇g(x)/|∇g(x)|². States saved
       between step ends (`saveat`) come from the step's dense output, one step's error off
-      the manifold at most. A [`grazejax.PiecewiseScene`][] sets it for its sliding modes.
+      the manifold at most. A `grazejax.PiecewiseScene` sets it for its sliding modes.
 
     A scene is static structure: it is hashable, and `jax.jit` treats it as a compile-time
     constant. Keep numbers in `args`.

@@ -83,109 +83,57 @@ def simulate(
     `args` leaves) and `jax.jacfwd` (with respect to `x0` and `args`). Called outside any
     transformation, it checks its inputs and runs a program compiled once per scene object
     and options (with `grazejax.compiler_options(batched=False)`) and kept: new `x0`, `t0`,
-    `t1` and numbers in `args` (arrays, Python floats) do not compile it again.
+    `t1` and numbers in `args` do not compile it again. What counts as an impact, a grazing
+    contact, Zeno and sticking is written down exactly in docs/semantics.md.
 
     **Arguments:**
 
-    - `scene`: a [`grazejax.Scene`][].
-    - `x0`: initial state, shape `(n,)`. Must not lie strictly inside a surface
-      (it may lie *on* one: a flight never impacts at its start time).
-    - `t0`, `t1`: start and end times. `t1 < t0` integrates backward in time through the
-      image surfaces Γ̃_i = J_i(Γ_i) with the inverse jumps (paper, Theorem 2.2).
-      `t1 = ±inf` runs until `max_impacts` (e.g. `max_impacts=1` is the impact map).
-    - `args`: a pytree of parameters passed to every scene function. Vary numbers here:
-      changing them never recompiles.
-    - `solver`: a Diffrax solver (default `diffrax.Tsit5()`). Tested: `Tsit5`, `Dopri5`,
-      `Dopri8`, `grazejax.Vern9`, and the implicit `Kvaerno5` for stiff flows.
-    - `rtol`, `atol`: tolerances of the default step-size controller (Diffrax's
-      `PIDController` with its default coefficients).
+    - `scene`: a `grazejax.Scene`.
+    - `x0`: initial state, shape `(n,)`: on a surface is allowed, strictly inside is not.
+    - `t0`, `t1`: start and end times. `t1 < t0` runs backward through the image surfaces
+      J_i(Γ_i); `t1 = ±inf` runs until `max_impacts` (`max_impacts=1`: the impact map).
+    - `args`: a pytree of parameters passed to every scene function; changing its numbers
+      never recompiles.
+    - `solver`: a Diffrax solver (default `diffrax.Tsit5()`; tested: `Tsit5`, `Dopri5`,
+      `Dopri8`, `grazejax.Vern9`, and the implicit `Kvaerno5` for stiff flows).
+    - `rtol`, `atol`: tolerances of the default `diffrax.PIDController`.
     - `stepsize_controller`: an adaptive Diffrax controller (overrides `rtol`/`atol`).
     - `dt0`: first step size (default: chosen by the controller).
-    - `max_impacts`: size of the impact log; the run stops (status `MAX_IMPACTS`) right
-      after this many impacts.
+    - `max_impacts`: rows of the impact log; the run stops (`MAX_IMPACTS`) after as many.
     - `max_steps`: bound on solver steps (status `MAX_STEPS`).
-    - `saveat`: times at which to save the state: a `diffrax.SaveAt(ts=..., t0=..., t1=...)`
-      (read as Diffrax reads it: t0, then ts, then t1) or a plain 1-D array of times,
-      monotone in the direction of integration. Values are left-continuous (pre-impact at
-      an impact time); times after the run stopped (e.g. at `MAX_IMPACTS`) are NaN.
-      `SaveAt(steps=True)`, `dense=True` and `fn=...` are not supported (a `ValueError`
-      says so). Without `saveat` no dense output is compiled.
-    - `zeno_rtol`: Zeno accumulation is declared when the last three inter-impact times
-      shrink geometrically (ratios equal to 5%) and the predicted time left to
-      accumulation is below `zeno_rtol × (t − t0)`; the estimate is in `zeno_time`.
-    - `zeno`: what happens at a Zeno accumulation or a tangential restart pushed into a
-      surface: a policy, [`grazejax.ZenoStop`][] or [`grazejax.ZenoStick`][], or its name
-      `"stop"` / `"stick"`. `ZenoStop()` (default): the run ends with `Status.ZENO`.
-      `ZenoStick()`: the state slides on the surface (Φ = 0, Φ̇ = 0) under the contact force that the free flow
-      calls for (see *Sticking* below) and is released when the free flow would pull it
-      away (Φ̈ ≥ 0); both moments are logged (`ImpactKind.STICK`, `ImpactKind.RELEASE`).
-      Forward time only.
+    - `saveat`: a `diffrax.SaveAt(ts=..., t0=..., t1=...)` or a 1-D array of times, monotone
+      in the direction of integration (pre-impact values at an impact time).
+    - `zeno_rtol`: Zeno is declared when the inter-impact times shrink geometrically and
+      the predicted time left is below `zeno_rtol × (t − t0)`.
+    - `zeno`: at a Zeno accumulation or a tangential restart pushed into a surface:
+      `"stop"` or `grazejax.ZenoStop()` (default: status `ZENO`); `"stick"` or
+      `grazejax.ZenoStick()` (slide on the surface until the flow pulls away).
     - `direction`: `+1` or `-1`; needed only when `t0`, `t1` are traced (inside `jit`).
-    - `allow_float32`: grazejax runs in float64; a float32 `x0` is an error unless this
-      is set (contact floors then scale with float32's epsilon).
-    - `adjoint`: how the loop is differentiated, as a Diffrax adjoint.
-      `None`/`diffrax.ForwardMode()` (default): `jax.jvp`/`jax.jacfwd`;
-      `diffrax.RecursiveCheckpointAdjoint(checkpoints=...)`: `jax.grad`/`jax.vjp`
-      (`checkpoints=None`, the default: the state every ~√max_steps steps and at each
-      impact, and, while the backward pass crosses one such chunk, each of its steps'
-      linearisation: ~√max_steps + max_impacts carries and ~√max_steps rows of
-      residuals; an integer c: Equinox's recursive schedule with c checkpoints;
-      `checkpoints >= max_steps` stores every step's linearisation and runs no step
-      twice, the fastest reverse pass when `max_steps` bounds the run closely);
-      `diffrax.DirectAdjoint()`: both modes, at the
-      memory cost of every step. Event-time tangents are the same in every mode (the
-      implicit function theorem at the landing step).
-    - `check_field_jumps`: at every event (impact, crossing, release), probe the vector
-      field at the state the next flight starts from, and stop with
-      `Status.FIELD_DISCONTINUITY` if it jumps there (a field written with `sign(·)` on the
-      event surface, whose side after the event is decided by round-off; outside
-      `jit`/`vmap` a `ValueError` that names the fix: modes, [`grazejax.PiecewiseScene`][]).
-      Seven evaluations of f per event, none differentiated; `False` compiles it out, and
-      so does a field that cannot jump (every operation on the state in its jaxpr is
-      continuous: no `sign`, comparison, or `where`/`cond`/index on x).
-    - `event_root_finder`: the bracketed root finder of every search inside a step (contacts,
-      extrema of the gap, the end of sliding): [`grazejax.Chandrupatla`][] (default),
-      [`grazejax.ITP`][] or [`grazejax.BracketedNewton`][]. All close the bracket to a few
-      ulps, so results agree to rounding; they differ in iterations per search
-      (`benchmarks/bench_roots.py`).
-    - `throw`: raise if the run does not end with `SUCCESS`, `MAX_IMPACTS` or `ZENO`.
-      Outside `jit`: a [`grazejax.SimulationError`][] that names the status and the fix,
-      with the Solution as `error.solution`. Inside `jit`/`vmap`: a runtime error
-      (`eqx.branched_error_if`) that names the status, without the Solution.
-      ([`grazejax.sweep`][] checks on the host and names the failing lanes.)
+    - `allow_float32`: accept a float32 `x0` (contact floors then scale with float32's
+      epsilon); otherwise grazejax runs in float64.
+    - `throw`: raise unless the run ends with `SUCCESS`, `MAX_IMPACTS` or `ZENO`: outside
+      `jit` a `grazejax.SimulationError` (the Solution as `error.solution`), inside a
+      runtime error naming the status.
+    - `adjoint`: a Diffrax adjoint: `None`/`diffrax.ForwardMode()` (default) for `jax.jacfwd`,
+      `diffrax.RecursiveCheckpointAdjoint()` for `jax.grad`, `diffrax.DirectAdjoint()` for
+      both (memory and cost: docs/linearization.md).
+    - `check_field_jumps`: probe f where each flight restarts and stop with
+      `FIELD_DISCONTINUITY` if it jumps there; `False` compiles the probe out.
+    - `event_root_finder`: the bracketed root finder of the searches inside a step:
+      `grazejax.Chandrupatla` (default), `grazejax.ITP` or `grazejax.BracketedNewton`.
 
-    **Returns:** a [`grazejax.Solution`][].
+    **Returns:** a `grazejax.Solution` (under `jax.vmap`, each field gains a batch axis):
 
-    **Sticking** (`zeno=ZenoStick()`, or `"stick"`): on the contact manifold M = {Φ = 0, Φ̇ = 0} the flow is
-    F = f + λd, with Φ̇, Φ̈ the derivatives along the free flow f, λ = −Φ̈/(∇ₓΦ̇·d) and d
-    the direction in which the surface's jump law applies its impulses: (DJ − I)∇ₓΦ̇,
-    minus its component along ∇ₓΦ (the least-norm ∇ₓΦ̇ direction if the jump law has
-    no impulse there). ∇ₓΦ·d = 0 keeps Φ̇ unchanged and λ makes d(Φ̇)/dt = 0, so M is
-    invariant; numerically it holds only to the solver's truncation error and rounding, so
-    every sliding step's end state is projected onto M (as at the start of sliding) and the
-    state does not drift off the contact over long runs. For a mechanical system
-    x = (q, v), Φ = Φ(t, q), with a restitution law,
-    d = (0, n): the normal contact force on the velocities, which holds while the free
-    flow pushes into the surface (Φ̈ < 0). Sliding starts at the impact where Zeno is detected (the skipped
-    tail is at most `zeno_rtol·t` long; the state is projected onto M, removing the
-    residual normal velocity), or at once after a tangential post-impact state pushed in
-    (e.g. restitution 0). It ends at the first root of Φ̈ (bracketed on the step's dense
-    output, a solver step lands on it); the state is projected onto M again and flies
-    freely from there. Another surface met while sliding is an ordinary impact (sliding
-    stops, and restarts if the state is again tangential and pushed in). Sliding on two
-    surfaces at once is not modelled: the run ends with `Status.ZENO`.
-
-    **Event semantics** (docs/semantics.md): an impact on Γ_i happens when Φ_i reaches 0 while
-    decreasing, or touches 0 tangentially, at a point of the closed piece (`where` true to
-    within round-off). Upward crossings pass through; Φ < 0 is allowed. A flight starting on
-    a surface (after a jump or at x0) does not impact at its start time. Excursions into
-    Φ < 0 shorter than a solver step are found by an in-step minimum search: an excursion of
-    depth δ > floor is an impact, a miss by more than the floor is not, and contacts within
-    the floor (64 ulps of Σ_k |∂Φ/∂x_k|·max|x_k| over the flight + |∂Φ/∂t|·|t| + h·|ġ| for a
-    step of length h; ~1e-14 for unit-size states) are reported as grazing (γ).
-    Contacts on several pieces within ~1e3 ulps of each other
-    are simultaneous: all are applied, in the order of `scene.surfaces`, each only if its
-    surface is still approached after the previous jumps.
+    - `t_final`, `x_final`: where the run stopped: `t1` and x(t1) on `SUCCESS`, the last
+      impact's time and post-impact state on `MAX_IMPACTS` and `ZENO`, the last state
+      reached on a failure.
+    - `status`: a `grazejax.Status` code (`sol.summary()` prints the run).
+    - `num_impacts`: rows used in the impact log, whose `max_impacts` rows are padded with
+      NaN: `impact_times` (θ), `impact_pre` (x(θ)), `impact_post` (x(θ+) = J(x(θ))),
+      `impact_surface` (index in `scene.surfaces`), `impact_kind` (a `grazejax.ImpactKind`).
+    - `zeno_time`: the estimated accumulation time when `status == ZENO`, else NaN.
+    - `num_steps`, `num_accepted_steps`: solver steps, all and accepted.
+    - `ts`, `xs`: saved times and states (`None` without `saveat`).
 
     **Example:**
 

@@ -9,7 +9,7 @@ from ._status import ImpactKind, Status
 
 
 class ImpactLog(eqx.Module):
-    r"""The impact log that [`grazejax.Solution`][] and [`grazejax.Orbit`][] both carry.
+    r"""The impact log that `grazejax.Solution` and `grazejax.Orbit` both carry.
 
     At an impact time θ, `impact_pre` is x(θ) and `impact_post` is x(θ+) = J(x(θ)) (the
     paper's left-continuous convention). The log has `max_impacts` rows; rows past
@@ -22,7 +22,7 @@ class ImpactLog(eqx.Module):
     - `impact_times`: the times θ.
     - `impact_pre`, `impact_post`: the states before and after each jump.
     - `impact_surface`: the index of the surface piece in `scene.surfaces`.
-    - `impact_kind`: an [`grazejax.ImpactKind`][] code (transversal, grazing, ...).
+    - `impact_kind`: an `grazejax.ImpactKind` code (transversal, grazing, ...).
     """
 
     num_impacts: Int[Array, ""]
@@ -34,19 +34,19 @@ class ImpactLog(eqx.Module):
 
 
 class Solution(ImpactLog):
-    r"""The result of [`grazejax.simulate`][]. Under `jax.vmap` every field gains a
+    r"""The result of `grazejax.simulate`. Under `jax.vmap` every field gains a
     leading batch axis.
 
     Solutions are left-continuous (the paper's convention): at an impact time θ,
     `impact_pre` is x(θ) and `impact_post` is x(θ+) = J(x(θ)). The impact log
-    ([`grazejax.ImpactLog`][]'s fields) has `max_impacts` rows; rows past `num_impacts` are
+    (`grazejax.ImpactLog`'s fields) has `max_impacts` rows; rows past `num_impacts` are
     padded with NaN (times, states), `-1` (surface) and `ImpactKind.NONE`.
 
     **Fields:**
 
     - `t_final`, `x_final`: where the run stopped: `t1` and x(t1) on `SUCCESS`; the time
       and post-impact state of the last impact on `MAX_IMPACTS` and `ZENO`. A failed run
-      (any other status, e.g. a failed lane of [`grazejax.sweep`][]) holds the last state
+      (any other status, e.g. a failed lane of `grazejax.sweep`) holds the last state
       it reached, never a state at `t1`: the last accepted step (`MAX_STEPS`,
       `STEP_SIZE_UNDERFLOW`, `NONFINITE` from the vector field); the event time and the
       state its jump produced (`BAD_JUMP`, `FIELD_DISCONTINUITY`; the state before the
@@ -61,7 +61,7 @@ class Solution(ImpactLog):
     - `impact_times`, `impact_pre`, `impact_post`, `impact_surface`, `impact_kind`: the log.
       In backward time (`t1 < t0`) "pre" is the state met first (on Γ̃) and "post" the
       state after the inverse jump; kinds are the primed ones.
-    - `status`: a [`grazejax.Status`][] code.
+    - `status`: a `grazejax.Status` code.
     - `zeno_time`: estimated accumulation time when `status == ZENO` (with
       `zeno="stick"`: of the last Zeno sequence before sliding), else NaN.
     - `num_steps`, `num_accepted_steps`: solver steps (all / accepted), for cost accounting.
@@ -95,7 +95,7 @@ class Solution(ImpactLog):
         the last (5 and 5 by default), with a line "... N more impacts ..." between, so
         that a run of hundreds of impacts fits a screen.
 
-        For a batch (from `jax.vmap` or [`grazejax.sweep`][]): the number of lanes with each
+        For a batch (from `jax.vmap` or `grazejax.sweep`): the number of lanes with each
         status, the ranges of `t_final`, `num_impacts` and `num_steps`, then one line per
         lane for the first `max_lanes` lanes.
         """
@@ -199,8 +199,8 @@ class SimulationError(RuntimeError):
 
     **Attributes:**
 
-    - `solution`: the whole [`grazejax.Solution`][] (every lane, for a batch).
-    - `status`: the [`grazejax.Status`][] of the (first) failing run.
+    - `solution`: the whole `grazejax.Solution` (every lane, for a batch).
+    - `status`: the `grazejax.Status` of the (first) failing run.
     - `lanes`: for a batch, the indices of the failing lanes; `None` for a single run.
     """
 
@@ -224,7 +224,7 @@ class SimulationError(RuntimeError):
 
 
 class FailedLanesWarning(UserWarning):
-    """Warned by [`grazejax.sweep`][] (with `throw=False`, the default) when some lanes end
+    """Warned by `grazejax.sweep` (with `throw=False`, the default) when some lanes end
     in a failure, a status other than `SUCCESS`, `MAX_IMPACTS` or `ZENO`. The message counts
     the failing lanes by status; each lane's own `status` says which they are, and the
     other lanes' results are unaffected.

@@ -66,7 +66,7 @@ class Status(StatusCode):
     crossing, or x0 on a surface): it switches on the event surface itself, written with `sign(·)` or
     `jnp.where` on the state, so the side whose field the next flight uses is decided by
     round-off. Stopped at that event (logged), or at t0. Fix: one mode per side
-    ([`grazejax.PiecewiseScene`][], docs/piecewise.md), or the side as a state component
+    (`grazejax.PiecewiseScene`, docs/piecewise.md), or the side as a state component
     that the jump flips. Outside `jit`/`vmap`, `simulate` raises a `ValueError` instead;
     `simulate(..., check_field_jumps=False)` turns the check off."""
     BAD_TIMES = 9, "t1 lies on the other side of t0 from direction: the run did not start"
@@ -126,4 +126,4 @@ class ContinuationStatus(StatusCode):
     START_FAILED = 4, "the starting orbit could not be solved at mu_start"
     """The starting orbit could not be (re)solved at `mu_start`."""
     LEFT_RANGE = 5, "nu left nu_range"
-    """ν left `nu_range` ([`grazejax.continue_grazing`][])."""
+    """ν left `nu_range` (`grazejax.continue_grazing`)."""

@@ -113,7 +113,7 @@ def sweep(
 
     **Arguments:**
 
-    - `scene`, `t0`, `t1`: as [`grazejax.simulate`][] (shared by all lanes).
+    - `scene`, `t0`, `t1`: as `grazejax.simulate` (shared by all lanes).
     - `x0s`: initial states, shape `(batch, n)`, or `(n,)` to use one state for all lanes.
     - `args`: parameters; leaves marked in `args_batched` carry the batch along axis 0.
     - `args_batched`: a pytree of bools with the structure of `args`. Default: a leaf is
@@ -140,14 +140,14 @@ def sweep(
     - `**simulate_kwargs`: every keyword option of `simulate` (rtol, atol, solver,
       max_impacts, saveat, ...). `adjoint` is checked and otherwise has no effect: the
       results are NumPy arrays, not differentiable (differentiate a batch with
-      `jax.vmap` of `jax.grad` through [`grazejax.simulate`][] instead).
+      `jax.vmap` of `jax.grad` through `grazejax.simulate` instead).
 
-    **Returns:** a [`grazejax.Solution`][] whose fields are NumPy arrays with a leading batch
+    **Returns:** a `grazejax.Solution` whose fields are NumPy arrays with a leading batch
     axis, in the order of the inputs (with `saveat`, `ts` too has one row per lane). A lane
     that fails (NaN, max steps, ...) reports it in its own `status` and never affects the
-    others; if any lane fails, `sweep` warns once with a [`grazejax.FailedLanesWarning`][]
+    others; if any lane fails, `sweep` warns once with a `grazejax.FailedLanesWarning`
     that counts the failing lanes by status (with `throw=True` it raises a
-    [`grazejax.SimulationError`][] instead). `SUCCESS`, `MAX_IMPACTS` and `ZENO` are not
+    `grazejax.SimulationError` instead). `SUCCESS`, `MAX_IMPACTS` and `ZENO` are not
     failures. Results do not depend on `chunk_size`, `pool_size` or the devices (see the
     module docstring for what "the same" means across `balance` values).
 

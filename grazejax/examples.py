@@ -1,6 +1,6 @@
 """Ready-made scenes: the seed paper's four systems and classic impact systems.
 
-Each factory returns a [`grazejax.Scene`][]; its parameters live in `args` (use the
+Each factory returns a `grazejax.Scene`; its parameters live in `args` (use the
 matching `*_args(...)` helper for the paper's values). Equations and sources are in each
 docstring; "the paper" is Akhmet & Kıvılcım, *Discontinuous dynamics with grazing points*
 (LaTeX labels in brackets). Where the paper is ambiguous our reading is stated.

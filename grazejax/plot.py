@@ -4,17 +4,17 @@ bifurcation diagrams.
 Everything here draws on a Matplotlib `Axes` you pass in; nothing opens a window. The
 helpers work for any 2-D scene (state of shape `(2,)`):
 
-- [`draw_surfaces`][] draws the surface pieces Γ_i = {Φ_i = 0} ∩ {where_i} inside the
+- `draw_surfaces` draws the surface pieces Γ_i = {Φ_i = 0} ∩ {where_i} inside the
   current axes limits, by sampling the zero set of Φ_i with a contour on a grid, projecting
   the samples onto Φ_i = 0 with two Newton steps, and keeping the samples where `where_i`
   holds. With `images=True` it also draws Γ̃_i = J_i(Γ_i), by mapping those samples through
   the jump.
-- [`draw_trajectory`][] draws a run of [`grazejax.simulate`][] from its saved states
+- `draw_trajectory` draws a run of `grazejax.simulate` from its saved states
   (`saveat`), breaking the line at every impact: the jump x(θ) → x(θ+) is a dotted segment
   from `impact_pre` to `impact_post`, with markers at both ends (a star for grazing, γ).
-- [`phase_portrait`][] does both, for one run or a batch of runs (leading batch axis).
-- [`grazejax.plot_bifurcation_diagram`][] draws branches of periodic orbits from
-  [`grazejax.continue_orbit`][] (amplitude against μ, stability, impacts per period).
+- `phase_portrait` does both, for one run or a batch of runs (leading batch axis).
+- `grazejax.plot_bifurcation_diagram` draws branches of periodic orbits from
+  `grazejax.continue_orbit` (amplitude against μ, stability, impacts per period).
 
 Colours follow the paper's figures: Γ in red, Γ̃ in green.
 
@@ -385,7 +385,7 @@ def phase_portrait(
     """Phase portrait of a 2-D scene: trajectories of `sol` with the surface pieces.
 
     `sol` is one run or a batch (leading axis) from `simulate(..., saveat=ts)`. Each run
-    is drawn with [`draw_trajectory`][] (lines broken at impacts, dotted jumps, impact
+    is drawn with `draw_trajectory` (lines broken at impacts, dotted jumps, impact
     markers, a triangle at the first drawn state unless `start=False`); then, if `surfaces`,
     the pieces Γ_i (and Γ̃_i with `images=True`) are drawn inside the axes limits (default:
     fitted to the trajectories). Returns `ax`.
@@ -428,7 +428,7 @@ def plot_bifurcation_diagram(
 
     **Arguments:**
 
-    - `branches`: one [`grazejax.Branch`][] or several.
+    - `branches`: one `grazejax.Branch` or several.
     - `path`: if given, the figure is saved there as a PNG.
     - `coordinate`: which state coordinate measures the orbit.
     - `measure`: `"max"` (largest value of the coordinate along the orbit), `"min"`, or

@@ -1,9 +1,16 @@
 """The checks CI runs besides the tests: ruff's lint rules and the documentation build in
 strict mode (a broken cross-reference, link or anchor fails). Both tools come with the
-`test` extra; without them these tests are skipped with the command that installs them."""
+`test` extra; without them these tests are skipped with the command that installs them.
+Also: the public docstrings read well in plain `help()` (no autorefs markup, `simulate`'s
+help fits a screen or two)."""
 
+import dataclasses
+import importlib
 import importlib.util
+import inspect
 import os
+import pydoc
+import re
 import subprocess
 import sys
 import types
@@ -75,3 +82,63 @@ def test_wheel_ships_the_license_and_the_typed_marker(tmp_path):
         (shipped,) = [name for name in names if name.endswith(".dist-info/licenses/LICENSE")]
         assert archive.read(shipped).decode() == license_text
     assert "License-Expression: Apache-2.0" in metadata
+
+
+# mkdocstrings' cross-reference markup, `[name][]` or `[title][grazejax.name]` (the two halves
+# possibly split over lines): in `help()` it shows as brackets. Docstrings name the API as
+# plain code, `grazejax.Scene`, which the site links (docs/hooks/code_refs.py).
+_AUTOREF = re.compile(r"\]\s*\[(grazejax\.[\w.]*)?\]")
+
+
+def _public_docstrings():
+    """(qualified name, docstring) of every public name of grazejax, of the members its
+    classes define, and of the public modules `examples`, `paper` and `plot`."""
+    import grazejax
+
+    objects = {
+        f"grazejax.{name}": value for name, value in vars(grazejax).items()
+        if not name.startswith("_") and not isinstance(value, types.ModuleType)
+    }
+    for module_name in ("examples", "paper", "plot"):
+        module = importlib.import_module(f"grazejax.{module_name}")
+        objects[module.__name__] = module
+        for name, value in vars(module).items():
+            if not name.startswith("_") and getattr(value, "__module__", "").startswith(
+                module.__name__
+            ):
+                objects[f"{module.__name__}.{name}"] = value
+    for qualified, value in objects.items():
+        yield qualified, qualified, inspect.getdoc(value) or ""
+        if isinstance(value, type):
+            for klass in value.__mro__:
+                if not klass.__module__.startswith("grazejax"):
+                    continue
+                for name, member in vars(klass).items():
+                    if name.startswith("_") and name != "__init__":
+                        continue
+                    member = getattr(member, "__func__", member)
+                    doc = getattr(member, "__doc__", None)
+                    if isinstance(member, (property, type)) or inspect.isfunction(member):
+                        yield qualified, f"{qualified}.{name}", doc or ""
+
+
+def test_public_docstrings_have_no_autorefs_markup():
+    marked = {}
+    for owner, name, doc in _public_docstrings():
+        if _AUTOREF.search(doc):
+            marked.setdefault(owner, []).append(name)
+    assert not marked, f"write `grazejax.X`, not [`grazejax.X`][], in: {marked}"
+
+
+def test_help_of_simulate_fits_and_lists_the_solution():
+    import grazejax as gj
+
+    text = pydoc.render_doc(gj.simulate, renderer=pydoc.plaintext)
+    lines = text.splitlines()
+    assert len(lines) <= 90, f"help(gj.simulate) is {len(lines)} lines (theory: docs/semantics.md)"
+    assert "**Arguments:**" in text and "**Returns:**" in text and "**Example:**" in text
+    # Every keyword of the signature is described, and every field of the Solution is named.
+    for name in inspect.signature(gj.simulate).parameters:
+        assert f"`{name}`" in text, f"simulate's docstring does not describe `{name}`"
+    for field in dataclasses.fields(gj.Solution):
+        assert f"`{field.name}`" in text, f"simulate's Returns does not name `{field.name}`"

@@ -1,6 +1,6 @@
 r"""Differentiable analysis through impacts: flow Jacobians, saltation, τ_i, W_i, B_i.
 
-Everything here is built on [`grazejax.simulate`][] and JAX's forward-mode autodiff: no
+Everything here is built on `grazejax.simulate` and JAX's forward-mode autodiff: no
 derivative of a flow is written by hand. `simulate` locates each event with one Newton
 step on the time, so `jax.jacfwd` through it carries the implicit-function-theorem
 tangent of every impact time, and the Jacobian of a run with impacts is the product of
@@ -12,17 +12,17 @@ checks of the autodiff results, and the tests compare the two.
 Paper objects (Akhmet & Kıvılcım, *Discontinuous dynamics with grazing points*, §2.1, §3):
 
 - the meeting time τ_i(x): when the flow of x' = f from (θ, x) reaches Γ_i
-  ([`grazejax.meeting_time`][], gradient eq. dert);
+  (`grazejax.meeting_time`, gradient eq. dert);
 - the B-equivalence map W_i(x) = ψ(θ) − x (eq. W-map): flow to Γ_i, jump, flow back to
-  θ ([`grazejax.w_map`][], Jacobian eq. derw), with W_i = 0 when the flow does not meet
+  θ (`grazejax.w_map`, Jacobian eq. derw), with W_i = 0 when the flow does not meet
   Γ_i near θ;
 - the linearization u' = A(t) u, Δu = B_i u (eq. lin1) along a solution
-  ([`grazejax.variational_transition`][]), with B_i = W_{ix} = S_i − I at α points;
+  (`grazejax.variational_transition`), with B_i = W_{ix} = S_i − I at α points;
 - the bivalued B_i at β/γ points, as one-sided limits over impacting (N1) and
-  non-impacting (N2) neighbours ([`grazejax.one_sided_jacobians`][]), and the (A2)
-  diagnostic, the growth exponent of ‖W_x‖ at a grazing point ([`grazejax.a2_diagnostic`][]).
+  non-impacting (N2) neighbours (`grazejax.one_sided_jacobians`), and the (A2)
+  diagnostic, the growth exponent of ‖W_x‖ at a grazing point (`grazejax.a2_diagnostic`).
 
-**Reverse mode.** [`grazejax.flow_jacobian`][] and [`grazejax.scalar_gradient`][] take
+**Reverse mode.** `grazejax.flow_jacobian` and `grazejax.scalar_gradient` take
 `simulate`'s `adjoint=`: with the default (`diffrax.ForwardMode()`) they differentiate in
 forward mode (one tangent per input coordinate, cheap for small state and parameter
 spaces); with `diffrax.RecursiveCheckpointAdjoint()` or `diffrax.DirectAdjoint()`,
@@ -30,20 +30,20 @@ spaces); with `diffrax.RecursiveCheckpointAdjoint()` or `diffrax.DirectAdjoint()
 and `flow_jacobian` uses `jax.jacrev` where forward mode is unavailable. The pointwise
 analyses below (τ_i, W_i, classification) are forward mode only.
 
-**Every result has a status.** Every result carries a [`grazejax.DerivativeStatus`][]. Near
+**Every result has a status.** Every result carries a `grazejax.DerivativeStatus`. Near
 grazing ∇Φ·f → 0 and the true derivatives grow without bound (like 1/(∇Φ·f)); they are
 returned as computed. At an exactly tangential contact the derivative does not exist: the
 pointwise analyses (τ_i, W_i) hold the (N2) one-sided value (no jump: B = O, S = I), a run's
 flow Jacobian and gradient are NaN (the event time of a touch has no derivative: `simulate`
 gives it a NaN tangent), each with the status `GRAZING`; use
-[`grazejax.one_sided_jacobians`][] for the one-sided linearizations. Divisions by ∇Φ·f use
+`grazejax.one_sided_jacobians` for the one-sided linearizations. Divisions by ∇Φ·f use
 the double-`where` so that no NaN reaches a tangent elsewhere. Values are otherwise NaN only
 together with the status `UNDEFINED` (Φ_i, f or J_i, or their derivatives, are not finite at
 the point: outside `jit` this raises a `ValueError` instead) or `SIMULATION_FAILED`.
 
 **Modules.** Each module imports only from those listed before it:
 
-- `common`: [`grazejax.DerivativeStatus`][], argument preparation (`prepare_point`,
+- `common`: `grazejax.DerivativeStatus`, argument preparation (`prepare_point`,
   `prepare_run`), the run-status and finiteness tests, the undefined-point error;
 - `jacobians`: `flow_jacobian`, `scalar_gradient` and their results;
 - `saltation`: `saltation_matrix` (`saltation_core`, its traceable form, and `saltation_jit`);

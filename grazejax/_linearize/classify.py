@@ -1,5 +1,5 @@
 """The paper's point types (§2): α, β, γ on Γ_i and α′, β′, γ′ on its image Γ̃_i
-([`grazejax.classify_point`][])."""
+(`grazejax.classify_point`)."""
 
 from __future__ import annotations
 
@@ -15,11 +15,11 @@ from .common import DerivativeStatus, prepare_point, raise_if_undefined, tree_fi
 
 
 class PointType(eqx.Module):
-    r"""Result of [`grazejax.classify_point`][]: the paper's point types (§2).
+    r"""Result of `grazejax.classify_point`: the paper's point types (§2).
 
     **Fields:**
 
-    - `kind`: an [`grazejax.ImpactKind`][]: α (Γ_i \ ∂Γ_i, transversal), β (∂Γ_i,
+    - `kind`: an `grazejax.ImpactKind`: α (Γ_i \ ∂Γ_i, transversal), β (∂Γ_i,
       transversal), γ (tangential), or the primes for the image surface Γ̃_i = J_i(Γ_i)
       (gap Φ̃_i = Φ_i ∘ J_i⁻¹); `NONE` if the point is on neither.
     - `on_surface`, `on_image`, `on_boundary`: membership of Γ_i, Γ̃_i, and of the boundary
@@ -28,7 +28,7 @@ class PointType(eqx.Module):
     - `normal`: ∇Φ_i (or ∇Φ̃_i) at the point.
     - `axial`: for a tangential point, whether some coordinate of the normal is zero
       (Definition grazingpoint); False otherwise.
-    - `status`: a [`grazejax.DerivativeStatus`][] code (`UNDEFINED` if Φ or f is not finite;
+    - `status`: a `grazejax.DerivativeStatus` code (`UNDEFINED` if Φ or f is not finite;
       on Γ̃ also if J⁻¹ could not be solved).
     """
 
@@ -104,7 +104,7 @@ def classify_point(
       too (tests/test_agreement.py). We follow
       docs/semantics.md: a tangential contact is γ even at an interior point (the paper's
       Definition grazingpoint puts grazing points on ∂Γ; an interior tangency violates
-      its (C4), which [`grazejax.check_conditions`][] reports).
+      its (C4), which `grazejax.check_conditions` reports).
     - On the image Γ̃_i: the same tests for Φ̃_i = Φ_i ∘ J_i⁻¹ (J⁻¹ from `inverse_jump`,
       else Newton), with ∂Γ̃_i = J(∂Γ_i).
     - Axial grazing (Definition grazingpoint): some coordinate of the normal is zero. The
@@ -112,7 +112,7 @@ def classify_point(
       point is on (∇Φ on Γ): at the paper's grazing points DJ is singular, so ∇Φ̃ = DJ⁻ᵀ∇Φ
       does not exist there.
 
-    **Returns:** a [`grazejax.PointType`][]. Its status is GRAZING for a tangential point.
+    **Returns:** a `grazejax.PointType`. Its status is GRAZING for a tangential point.
     """
     i, t, x, args = prepare_point(scene, surface_index, t, x, args)
     result = _classify_jit(scene, i, t, x, args, rtol)

@@ -1,5 +1,5 @@
 """Flow Jacobians and gradients of a run with impacts, by autodiff through `simulate`
-([`grazejax.flow_jacobian`][], [`grazejax.scalar_gradient`][])."""
+(`grazejax.flow_jacobian`, `grazejax.scalar_gradient`)."""
 
 from __future__ import annotations
 
@@ -20,15 +20,15 @@ from .common import DerivativeStatus, prepare_run, simulation_ok, tree_finite
 
 
 class FlowJacobian(eqx.Module):
-    """Result of [`grazejax.flow_jacobian`][].
+    """Result of `grazejax.flow_jacobian`.
 
     **Fields:**
 
-    - `x_final`: x(t1) (or where the run stopped, see [`grazejax.Solution`][]).
+    - `x_final`: x(t1) (or where the run stopped, see `grazejax.Solution`).
     - `jacobian`: ∂x_final/∂x0, shape `(n, n)`, or ∂x_final/∂args (a pytree like `args`
       whose leaves have a leading axis of size n).
-    - `status`: a [`grazejax.DerivativeStatus`][] code.
-    - `solution`: the [`grazejax.Solution`][] of the run (impact log, simulator status).
+    - `status`: a `grazejax.DerivativeStatus` code.
+    - `solution`: the `grazejax.Solution` of the run (impact log, simulator status).
     """
 
     x_final: Float[Array, " n"]
@@ -38,8 +38,8 @@ class FlowJacobian(eqx.Module):
 
 
 class ScalarGradient(eqx.Module):
-    """Result of [`grazejax.scalar_gradient`][]: `value` = loss(solution), `grad` (shaped
-    like `x0` or `args`), `status` ([`grazejax.DerivativeStatus`][]) and the `solution`."""
+    """Result of `grazejax.scalar_gradient`: `value` = loss(solution), `grad` (shaped
+    like `x0` or `args`), `status` (`grazejax.DerivativeStatus`) and the `solution`."""
 
     value: Float[Array, ""]
     grad: Any
@@ -93,7 +93,7 @@ def flow_jacobian(
 
     **Arguments:**
 
-    - `scene`, `x0`, `t0`, `t1`, `args`: as for [`grazejax.simulate`][].
+    - `scene`, `x0`, `t0`, `t1`, `args`: as for `grazejax.simulate`.
     - `wrt`: `"x0"` for ∂x(t1)/∂x0, shape `(n, n)`; `"args"` for ∂x(t1)/∂args (a pytree
       like `args`, each leaf with a leading axis of size n; leaves must be floats).
     - `**simulate_kwargs`: passed to `simulate` (`rtol`, `atol`, `solver`, `max_impacts`,
@@ -101,7 +101,7 @@ def flow_jacobian(
       `jax.jacfwd` unless `adjoint` is reverse-only
       (`diffrax.RecursiveCheckpointAdjoint()`): then `jax.jacrev`.
 
-    **Returns:** a [`grazejax.FlowJacobian`][]; its `status` is GRAZING if some impact of
+    **Returns:** a `grazejax.FlowJacobian`; its `status` is GRAZING if some impact of
     the run was tangential (the derivative does not exist there). A run that stops early
     (`MAX_IMPACTS`, e.g. `max_impacts=1`) ends at the last impact time, which itself depends
     on x0: the Jacobian is then that of the post-impact state at the (moving) impact time.
@@ -149,14 +149,14 @@ def scalar_gradient(
 
     **Arguments:**
 
-    - `loss`: `loss(solution) -> scalar`, a JAX function of the [`grazejax.Solution`][]
+    - `loss`: `loss(solution) -> scalar`, a JAX function of the `grazejax.Solution`
       (e.g. `lambda s: s.impact_times[2]` or `lambda s: s.x_final @ s.x_final`). It is a
       static part of the compiled program: define it once, not as a fresh lambda per call.
-    - `scene`, `x0`, `t0`, `t1`, `args`, `**simulate_kwargs`: as for [`grazejax.simulate`][]
+    - `scene`, `x0`, `t0`, `t1`, `args`, `**simulate_kwargs`: as for `grazejax.simulate`
       (`adjoint` picks the mode, see above).
     - `wrt`: `"x0"` or `"args"`.
 
-    **Returns:** a [`grazejax.ScalarGradient`][] (`value`, `grad`, `status`, `solution`).
+    **Returns:** a `grazejax.ScalarGradient` (`value`, `grad`, `status`, `solution`).
 
     **Example** (∂t_3/∂e of a bouncing ball, closed form 2w(1 + 2e)/g):
 

@@ -1,5 +1,5 @@
-"""One-sided limits of W_{ix} at β/γ points ([`grazejax.one_sided_jacobians`][]) and the
-(A2) diagnostic at a grazing point ([`grazejax.a2_diagnostic`][]): many W-maps at
+"""One-sided limits of W_{ix} at β/γ points (`grazejax.one_sided_jacobians`) and the
+(A2) diagnostic at a grazing point (`grazejax.a2_diagnostic`): many W-maps at
 neighbours approaching the point, their growth exponent and extrapolated limits."""
 
 from __future__ import annotations
@@ -51,9 +51,9 @@ class OneSidedLimit(eqx.Module):
 
 
 class OneSidedLinearization(eqx.Module):
-    r"""Result of [`grazejax.one_sided_jacobians`][]: the bivalued B_i at a β/γ point.
+    r"""Result of `grazejax.one_sided_jacobians`: the bivalued B_i at a β/γ point.
 
-    `plus` and `minus` are the [`grazejax.OneSidedLimit`][]s along x* ± d·v. `n1` and
+    `plus` and `minus` are the `grazejax.OneSidedLimit`s along x* ± d·v. `n1` and
     `n2` are the same two, sorted by which side meets Γ_i (None if neither/both do):
     B_i = `n1.limit` for impacting neighbours (N1), `n2.limit` (= O) for the others (N2).
     """
@@ -67,7 +67,7 @@ class OneSidedLinearization(eqx.Module):
 
 
 class A2Diagnostic(eqx.Module):
-    r"""Result of [`grazejax.a2_diagnostic`][]: is W_i differentiable at a grazing point?
+    r"""Result of `grazejax.a2_diagnostic`: is W_i differentiable at a grazing point?
 
     **Fields:**
 
@@ -190,13 +190,13 @@ def one_sided_jacobians(
     At a boundary point x* = x_0(θ_i) ∈ ∂Γ_i, neighbours either meet Γ_i near θ_i (the
     paper's (N1)) or do not (N2), and B_i = W_{ix} takes one value per case (eq. beta).
     This computes W_{ix} at x* ± d_k v for decreasing d_k (one vectorised, compiled
-    [`grazejax.w_map`][] call per side), classifies each side as N1/N2 by whether its
+    `grazejax.w_map` call per side), classifies each side as N1/N2 by whether its
     neighbours meet Γ_i, and extrapolates each side's limit (Richardson on the successive
     differences), reporting the growth exponent of ‖W_{ix}‖ and whether it converged.
 
     At a β point the (N1) limit is S − I (finite) and the (N2) limit is O. At a γ point the
     (N2) limit is O, and the (N1) side diverges unless DJ f = f at x* (then the 1/(∇Φ·f)
-    term of S cancels): see [`grazejax.a2_diagnostic`][].
+    term of S cancels): see `grazejax.a2_diagnostic`.
 
     **Arguments:**
 
@@ -207,7 +207,7 @@ def one_sided_jacobians(
     - `distances`: the d_k (default 13 values from 1e-2 to 1e-8).
     - `**simulate_kwargs`: tolerances (use 1e-12), solver.
 
-    **Returns:** a [`grazejax.OneSidedLinearization`][] (`n1.limit`, `n2.limit` are B_i).
+    **Returns:** a `grazejax.OneSidedLinearization` (`n1.limit`, `n2.limit` are B_i).
     """
     i, t, x, args = prepare_point(scene, surface_index, t, x, args)
     v = _unit(direction)
@@ -274,7 +274,7 @@ def a2_diagnostic(
     r"""Test the paper's (A2) — W_i differentiable at a grazing point — by measurement.
 
     Along impacting neighbours x* + d v (d → 0) of a grazing point x* (at time θ = `t`),
-    measure ‖W_{ix}‖ (the B-equivalence map's Jacobian, [`grazejax.w_map`][]) and the norm
+    measure ‖W_{ix}‖ (the B-equivalence map's Jacobian, `grazejax.w_map`) and the norm
     of the time-synchronised flow Jacobian ∂x(θ + h)/∂x(θ − h) of the full system through
     the impact (h = `window`), and fit the exponent q of ‖·‖ ∝ d^q. q ≈ 0: bounded, as
     (A2) requires; q ≈ −1/2: Nordmark's square-root singularity (the saltation matrix's
@@ -294,7 +294,7 @@ def a2_diagnostic(
       Γ_i shortly before θ, the (N1) side).
     - `distances`: the d_k (default 13 values from 1e-2 to 1e-8).
 
-    **Returns:** an [`grazejax.A2Diagnostic`][].
+    **Returns:** an `grazejax.A2Diagnostic`.
     """
     i, t, x, args = prepare_point(scene, surface_index, t, x, args)
     if direction is None:

@@ -1,6 +1,6 @@
 """The meeting time τ_i(x) and the B-equivalence map W_i(x) with their derivatives, by
-autodiff through the located event ([`grazejax.meeting_time`][], [`grazejax.w_map`][]), and
-the paper's eqs. dert and derw in closed form ([`grazejax.closed_form_linearization`][])."""
+autodiff through the located event (`grazejax.meeting_time`, `grazejax.w_map`), and
+the paper's eqs. dert and derw in closed form (`grazejax.closed_form_linearization`)."""
 
 from __future__ import annotations
 
@@ -31,7 +31,7 @@ from .saltation import Saltation, saltation_core
 
 
 class Meeting(eqx.Module):
-    r"""Result of [`grazejax.meeting_time`][]: the paper's τ_i(x) and its gradient.
+    r"""Result of `grazejax.meeting_time`: the paper's τ_i(x) and its gradient.
 
     **Fields:**
 
@@ -39,9 +39,9 @@ class Meeting(eqx.Module):
     - `x_meet`: ξ(τ_i), the pre-jump state on Γ_i (x where `met` is False).
     - `grad`: ∇τ_i(x), shape `(n,)`, by `jax.jacfwd` through the event (eq. dert).
     - `x_meet_jacobian`: dξ(τ_i(x))/dx = X + f ∇τᵀ, shape `(n, n)`.
-    - `kind`: the [`grazejax.ImpactKind`][] of the meeting point (α, β or γ).
+    - `kind`: the `grazejax.ImpactKind` of the meeting point (α, β or γ).
     - `met`: whether the flow meets Γ_i within `[t − lookback, t + horizon]`.
-    - `status`: a [`grazejax.DerivativeStatus`][] code.
+    - `status`: a `grazejax.DerivativeStatus` code.
     """
 
     tau: Float[Array, ""]
@@ -54,7 +54,7 @@ class Meeting(eqx.Module):
 
 
 class WMap(eqx.Module):
-    r"""Result of [`grazejax.w_map`][]: the paper's W_i(x) (eq. W-map) and W_{ix} (eq. derw).
+    r"""Result of `grazejax.w_map`: the paper's W_i(x) (eq. W-map) and W_{ix} (eq. derw).
 
     **Fields:**
 
@@ -63,8 +63,8 @@ class WMap(eqx.Module):
     - `jacobian`: W_{ix}, shape `(n, n)`, by `jax.jacfwd`. The linearization's jump matrix
       is B_i = W_{ix}; the full map x ↦ x + W_i(x) has Jacobian I + W_{ix} (= S at α points
       on the orbit).
-    - `tau`, `x_meet`, `kind`, `met`: as in [`grazejax.Meeting`][].
-    - `status`: a [`grazejax.DerivativeStatus`][] code.
+    - `tau`, `x_meet`, `kind`, `met`: as in `grazejax.Meeting`.
+    - `status`: a `grazejax.DerivativeStatus` code.
     """
 
     value: Float[Array, " n"]
@@ -77,15 +77,15 @@ class WMap(eqx.Module):
 
 
 class ClosedForm(eqx.Module):
-    r"""Result of [`grazejax.closed_form_linearization`][]: eqs. dert and derw.
+    r"""Result of `grazejax.closed_form_linearization`: eqs. dert and derw.
 
     With X = ∂φ(τ; t, x)/∂x and Y = ∂φ(t; τ, y)/∂y at y = J(ξ(τ)) (Jacobians of
     impact-free flows at *fixed* times, no event differentiated):
 
     - `grad_tau` = −Xᵀ∇Φ / (∂Φ/∂t + ∇Φ·f⁻) (eq. dert),
     - `w_jacobian` = Y S X − I (eq. derw; it reduces to S − I when τ = t),
-    - `saltation`: the [`grazejax.Saltation`][] at ξ(τ),
-    - `status`: a [`grazejax.DerivativeStatus`][] code.
+    - `saltation`: the `grazejax.Saltation` at ξ(τ),
+    - `status`: a `grazejax.DerivativeStatus` code.
     """
 
     grad_tau: Float[Array, " n"]
@@ -203,7 +203,7 @@ def meeting_time(
     `simulate` on Γ_i alone with the jump replaced by the identity and `max_impacts=1`,
     searching `[t − lookback, t + horizon]`; ∇τ_i comes from `jax.jacfwd` through the
     located event (simulate's Newton step carries the implicit-function tangent).
-    [`grazejax.closed_form_linearization`][] gives eq. dert independently.
+    `grazejax.closed_form_linearization` gives eq. dert independently.
 
     **Arguments:**
 
@@ -216,7 +216,7 @@ def meeting_time(
     - `horizon`: search until t + horizon (default inf: until the meeting, or `max_steps`).
     - `**simulate_kwargs`: tolerances, solver, `max_steps` for the flights.
 
-    **Returns:** a [`grazejax.Meeting`][]; `tau` is inf and the status NO_CONTACT when the
+    **Returns:** a `grazejax.Meeting`; `tau` is inf and the status NO_CONTACT when the
     flow does not meet Γ_i in the window. At a tangential meeting (γ) ∇τ does not exist
     (it grows like 1/(∇Φ·f) on the (N1) side): `grad` is 0 and the status GRAZING.
     """
@@ -259,15 +259,15 @@ def w_map(
 
     W_{ix} is `jax.jacfwd` of this composition (through the located event and both
     flights). At α points it equals Y S X − I (S the saltation matrix; S − I when x is on
-    Γ_i): see [`grazejax.closed_form_linearization`][].
+    Γ_i): see `grazejax.closed_form_linearization`.
 
-    **Arguments:** as for [`grazejax.meeting_time`][] (`lookback`, `horizon` bound the
+    **Arguments:** as for `grazejax.meeting_time` (`lookback`, `horizon` bound the
     search window around θ; use `lookback > 0` for points on Γ_i or past it).
 
-    **Returns:** a [`grazejax.WMap`][]. Status NO_CONTACT: W = 0, W_x = O (the (N2)
+    **Returns:** a `grazejax.WMap`. Status NO_CONTACT: W = 0, W_x = O (the (N2)
     value). Status GRAZING (x, or its meeting point, is a tangential contact): W = 0 and
     W_x = O, the (N2) value; the (N1) side has no limit in general: see
-    [`grazejax.one_sided_jacobians`][] and [`grazejax.a2_diagnostic`][].
+    `grazejax.one_sided_jacobians` and `grazejax.a2_diagnostic`.
     """
     i, t, x, args = prepare_point(scene, surface_index, t, x, args)
     kw = dict(simulate_kwargs)
@@ -310,19 +310,19 @@ def closed_form_linearization(
     r"""Eqs. dert and derw in closed form, given the meeting time τ (the independent check).
 
     With X = ∂φ(τ; t, x)/∂x (the flow Jacobian from t to the *fixed* time τ), ξ = φ(τ; t, x),
-    S the [saltation matrix][grazejax.saltation_matrix] at (τ, ξ) and
+    S the saltation matrix (`grazejax.saltation_matrix`) at (τ, ξ) and
     Y = ∂φ(t; τ, y)/∂y at y = J(ξ):
 
     ∇τ = −Xᵀ∇Φ / (∂Φ/∂t + ∇Φ·f⁻)   (eq. dert),
     W_x = Y S X − I                 (eq. derw; S − I when τ = t).
 
     Only impact-free flows are differentiated here, so this is independent of the event
-    tangents that [`grazejax.meeting_time`][] and [`grazejax.w_map`][] rely on.
+    tangents that `grazejax.meeting_time` and `grazejax.w_map` rely on.
 
     **Arguments:** `t`, `x` the start (θ and the point), `tau` its meeting time with Γ_i
-    (e.g. `meeting_time(...).tau`); the rest as for [`grazejax.w_map`][].
+    (e.g. `meeting_time(...).tau`); the rest as for `grazejax.w_map`.
 
-    **Returns:** a [`grazejax.ClosedForm`][] (status GRAZING with zero matrices when the
+    **Returns:** a `grazejax.ClosedForm` (status GRAZING with zero matrices when the
     meeting is tangential).
     """
     i, t, x, args = prepare_point(scene, surface_index, t, x, args)

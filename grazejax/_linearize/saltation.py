@@ -1,5 +1,5 @@
 """The saltation matrix of a surface at a pre-impact state, in closed form from derivatives
-of f, Φ and J at the point ([`grazejax.saltation_matrix`][]): the independent check of the
+of f, Φ and J at the point (`grazejax.saltation_matrix`): the independent check of the
 autodiff results, and the jump factor of the variational system."""
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from .common import DerivativeStatus, prepare_point, raise_if_undefined, tree_fi
 
 
 class Saltation(eqx.Module):
-    r"""Result of [`grazejax.saltation_matrix`][].
+    r"""Result of `grazejax.saltation_matrix`.
 
     **Fields:**
 
@@ -24,7 +24,7 @@ class Saltation(eqx.Module):
       At an exactly tangential contact: the identity (the (N2) value) with status GRAZING.
     - `x_post`: J(t, x_pre).
     - `approach_rate`: dΦ/dt = ∂Φ/∂t + ∇Φ·f⁻ at the contact (< 0 for an impact).
-    - `status`: a [`grazejax.DerivativeStatus`][] code.
+    - `status`: a `grazejax.DerivativeStatus` code.
     """
 
     matrix: Float[Array, "n n"]
@@ -80,7 +80,7 @@ def saltation_matrix(scene: Scene, surface_index: int, t, x_pre, args=None) -> S
     - `t`, `x_pre`: the impact time and the state on Γ_i just before the jump.
     - `args`: the scene's parameters.
 
-    **Returns:** a [`grazejax.Saltation`][]. When ∂Φ/∂t + ∇Φ·f⁻ vanishes to round-off
+    **Returns:** a `grazejax.Saltation`. When ∂Φ/∂t + ∇Φ·f⁻ vanishes to round-off
     (tangential contact) `matrix` is the identity, the (N2) value, and the status GRAZING:
     the (N1) value grows like 1/(∇Φ·f⁻). Outside `jit`, a point where Φ, f or J (or their
     derivatives) is not finite raises a `ValueError`.

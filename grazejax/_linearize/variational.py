@@ -1,5 +1,5 @@
 """The paper's variational system (eq. lin1) along a solution with impacts: flights of
-u' = A(t) u and jumps by the saltation matrices ([`grazejax.variational_transition`][])."""
+u' = A(t) u and jumps by the saltation matrices (`grazejax.variational_transition`)."""
 
 from __future__ import annotations
 
@@ -21,7 +21,7 @@ from .saltation import saltation_core
 
 
 class Variational(eqx.Module):
-    r"""Result of [`grazejax.variational_transition`][]: the paper's system (lin1) solved.
+    r"""Result of `grazejax.variational_transition`: the paper's system (lin1) solved.
 
     u' = A(t) u with A = ∂f/∂x along the solution, Δu = B_i u at each impact θ_i, with
     B_i = S_i − I (S_i the saltation matrix at the logged pre-impact state).
@@ -36,9 +36,9 @@ class Variational(eqx.Module):
       for a scene without `project`: with one, U's flights are projected as the run's are,
       U ↦ DP(x) U after each step, and U is singular across the manifold).
     - `impact_times`, `num_impacts`: from the run.
-    - `status`: a [`grazejax.DerivativeStatus`][] code (GRAZING if an impact was tangential:
+    - `status`: a `grazejax.DerivativeStatus` code (GRAZING if an impact was tangential:
       its B_i is O, the (N2) value).
-    - `solution`: the [`grazejax.Solution`][] of the run.
+    - `solution`: the `grazejax.Solution` of the run.
     """
 
     transition: Float[Array, "n n"]
@@ -164,15 +164,15 @@ def variational_transition(scene: Scene, x0, t0, t1, args=None, **simulate_kwarg
     r"""Solve the paper's variational system (eq. lin1) along a solution with impacts.
 
     u' = A(t) u with A(t) = ∂f/∂x(t, x(t)) between impacts, and Δu|_{θ_i} = B_i u(θ_i) at
-    each impact, with B_i = S_i − I from the closed-form [saltation matrix]
-    [grazejax.saltation_matrix] at the logged pre-impact state (the paper's W_{ix} at an α
+    each impact, with B_i = S_i − I from the closed-form saltation matrix
+    (`grazejax.saltation_matrix`) at the logged pre-impact state (the paper's W_{ix} at an α
     point, eq. derw). The solution is computed by `simulate`; each flight of the variational
     system restarts from the logged post-impact state. The transition matrix equals
     `flow_jacobian(...).jacobian` (the tests check this), and det U = Π det S_i · e^{∫ tr A}.
 
     Forward time only (`t1 > t0`). Simultaneous impacts are composed in log order.
 
-    **Returns:** a [`grazejax.Variational`][]. At a tangential (γ) impact B_i = O (the (N2)
+    **Returns:** a `grazejax.Variational`. At a tangential (γ) impact B_i = O (the (N2)
     value) and the status is GRAZING.
     """
     x0, t0, t1, args, kw = prepare_run(scene, x0, t0, t1, args, "x0", simulate_kwargs)

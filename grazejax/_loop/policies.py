@@ -22,11 +22,11 @@ if TYPE_CHECKING:
 
 
 class AbstractZenoPolicy(eqx.Module):
-    """What [`grazejax.simulate`][] does at a Zeno accumulation (impacts accumulating at a
+    """What `grazejax.simulate` does at a Zeno accumulation (impacts accumulating at a
     finite time) or at a tangential restart pushed into a surface (e.g. restitution 0).
 
     Pass an instance as `simulate(..., zeno=...)` or `sweep(..., zeno=...)`; the strings
-    `"stop"` and `"stick"` mean [`grazejax.ZenoStop`][] and [`grazejax.ZenoStick`][].
+    `"stop"` and `"stick"` mean `grazejax.ZenoStop` and `grazejax.ZenoStick`.
 
     The loop's phases call a policy's methods where the two differ (they take the loop's
     own context and state: hooks of the loop, not a user extension point): `start` at t0,
@@ -94,7 +94,7 @@ class ZenoStop(AbstractZenoPolicy):
 class ZenoStick(AbstractZenoPolicy):
     """Slide on the surface under the contact force the free flow calls for, and release
     when the free flow pulls away (Φ̈ ≥ 0); both moments are logged (`ImpactKind.STICK`,
-    `ImpactKind.RELEASE`). Forward time only. See *Sticking* in [`grazejax.simulate`][].
+    `ImpactKind.RELEASE`). Forward time only. See *Sticking* in docs/semantics.md.
 
     **Example:**
 
@@ -200,7 +200,7 @@ def sliding_phases(cond, step, free_step, slides):
 
 
 def sliding_field(vector_field, pieces, t, y, args_, stick, free):
-    """f + λd on the surfaces slid on (see *Sticking* in `simulate`); the constrained field
+    """f + λd on the surfaces slid on (see *Sticking* in docs/semantics.md); the constrained field
     is evaluated only while some lane slides."""
 
     def constrained():

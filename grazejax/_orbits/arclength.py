@@ -6,7 +6,7 @@ share (`bordered_newton`, `next_tangent`, `continuation_settings`).
 The engine knows nothing of orbits. A front end gives it `correct`, Newton's method on
 [F(Y); tangent·(Y − Y_pred)] = 0 followed by the new point's tangent and diagnostics (a
 point with `Y`, `tangent` and Newton's `steps`, or None where it fails), and the engine
-predicts, accepts, adapts the step and stops (a [`grazejax.ContinuationStatus`][]):
+predicts, accepts, adapts the step and stops (a `grazejax.ContinuationStatus`):
 
 - at `stop` on the coordinate `index` of Y, exactly (a last correction whose bordered row
   fixes that coordinate);
@@ -194,7 +194,7 @@ def write_text(text: str, path) -> str:
 
 
 def continuation_settings(orbit, rtol, atol, solver, newton_tol, max_newton_steps):
-    """The simulate keywords, [`grazejax.SolverSettings`][] and state scale of a
+    """The simulate keywords, `grazejax.SolverSettings` and state scale of a
     continuation from `orbit` (`atol=None`: scaled to the orbit's size)."""
     scale = (orbit.settings.state_scale if orbit.settings is not None
              else orbit_scale(np.asarray(orbit.x0)))

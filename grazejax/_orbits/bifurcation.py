@@ -55,19 +55,19 @@ KINDS = ("period-doubling", "fold", "neimark-sacker")
 
 
 class BifurcationPoint(eqx.Module):
-    r"""A bifurcation point solved by its defining system ([`grazejax.locate_bifurcation`][]).
+    r"""A bifurcation point solved by its defining system (`grazejax.locate_bifurcation`).
 
     **Fields:**
 
     - `kind`: `"period-doubling"`, `"fold"` or `"neimark-sacker"`, or `"grazing"` from
-      [`grazejax.locate_grazing`][] (static).
+      `grazejax.locate_grazing` (static).
     - `mu`, `nu`: the first parameter (solved for) and the second (given).
     - `x0`, `t0`, `period`: the orbit there (`x0` at phase `t0`).
     - `multipliers`: of its monodromy, modulus descending.
     - `test_value`: the kind's test function at the solution (≈ 0).
     - `residual`: max |P(x0) − x0| at the solution (no derivative: NaN).
     - `num_impacts`: impacts per period of the orbit.
-    - `status`: an [`grazejax.OrbitStatus`][] code (`SUCCESS`, `NO_CONVERGENCE`,
+    - `status`: an `grazejax.OrbitStatus` code (`SUCCESS`, `NO_CONVERGENCE`,
       `DIVERGED`, `SIMULATION_FAILED`); `num_steps`: Newton iterations.
 
     `mu`, `x0`, `period` and `multipliers` are differentiable in ν (and in anything
@@ -178,7 +178,7 @@ def locate_special(
     adjoint=None,
 ) -> BifurcationPoint:
     """A period-doubling, fold or Neimark–Sacker point solved by its defining system at ν
-    ([`grazejax.locate_bifurcation`][] of those kinds: its arguments)."""
+    (`grazejax.locate_bifurcation` of those kinds: its arguments)."""
     kind = getattr(point, "kind", None) if kind is None else kind
     if not loop_kinds(adjoint).forward:
         raise ValueError(

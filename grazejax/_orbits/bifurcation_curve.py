@@ -59,7 +59,7 @@ from .period_map import newton_for, orbit_kernel, period_map_jacobian
 
 class Codim2Point(NamedTuple):
     """Where a curve of bifurcation points meets another bifurcation
-    ([`grazejax.continue_bifurcation`][]): its `kind` (the module's list), `mu`, `nu`
+    (`grazejax.continue_bifurcation`): its `kind` (the module's list), `mu`, `nu`
     (linear interpolation of its test function between the curve's points `after − 1`
     and `after`), and `after`."""
 
@@ -71,7 +71,7 @@ class Codim2Point(NamedTuple):
 
 class BifurcationCurve(eqx.Module):
     r"""A curve of bifurcation points in two parameters
-    ([`grazejax.continue_bifurcation`][]). NumPy arrays, one row per point, in order of
+    (`grazejax.continue_bifurcation`). NumPy arrays, one row per point, in order of
     computation.
 
     **Fields:**
@@ -81,8 +81,8 @@ class BifurcationCurve(eqx.Module):
     - `x0`, `t0`, `period`: the orbit (`x0` at phase `t0`).
     - `multipliers`: of its monodromy, modulus descending.
     - `num_impacts`: impacts per period.
-    - `codim2`: the codimension-two points met ([`grazejax.Codim2Point`][]).
-    - `status`: a [`grazejax.ContinuationStatus`][] (shown by name; equal to its
+    - `codim2`: the codimension-two points met (`grazejax.Codim2Point`).
+    - `status`: a `grazejax.ContinuationStatus` (shown by name; equal to its
       integer code); `message` reads it.
     """
 
@@ -261,9 +261,9 @@ def continue_bifurcation(
 
     **Arguments:**
 
-    - `scene`: a [`grazejax.Scene`][].
-    - `point`: where to start: a [`grazejax.SpecialPoint`][] (from
-      [`grazejax.continue_orbit`][]), a [`grazejax.BifurcationPoint`][], or any object
+    - `scene`: a `grazejax.Scene`.
+    - `point`: where to start: a `grazejax.SpecialPoint` (from
+      `grazejax.continue_orbit`), a `grazejax.BifurcationPoint`, or any object
       with `mu`, `x0`, `t0`, `period` (and `kind` unless given). It only needs to be
       close: the first point is solved at ν = `nu_start` with μ free.
     - `args_of(mu, nu) -> args`: traceable; pass the same function object across calls
@@ -271,24 +271,24 @@ def continue_bifurcation(
     - `mu_start`, `nu_start`: the parameters at `point` (`mu_start` is the guess of μ).
     - `nu_stop`: the curve is followed from `nu_start` towards `nu_stop` (the first step
       moves ν that way) and ends there exactly, unless it stops earlier.
-    - `kind`: default `point.kind` (`"grazing"` for a [`grazejax.GrazingPoint`][]).
+    - `kind`: default `point.kind` (`"grazing"` for a `grazejax.GrazingPoint`).
     - `fixed_period`: forced orbits, of period `period_of(mu, nu)` (default: the point's
       period, fixed); `False`: autonomous ones (phase condition on x_j, `fix` = j as in
-      [`grazejax.locate_bifurcation`][]). Default: `point.fixed_period`, else True.
+      `grazejax.locate_bifurcation`). Default: `point.fixed_period`, else True.
     - `mu_range`: `(lo, hi)`: stop when μ leaves it.
     - `ds`, `ds_min` (default `1e-3 * ds`), `ds_max`, `max_points`, `progress`: the
-      arclength steps in (x0, μ, ν) (and T), as in [`grazejax.continue_grazing`][].
-    - `rtol`, `atol`, `solver`: for [`grazejax.simulate`][] (`atol=None`: scaled to the
+      arclength steps in (x0, μ, ν) (and T), as in `grazejax.continue_grazing`.
+    - `rtol`, `atol`, `solver`: for `grazejax.simulate` (`atol=None`: scaled to the
       orbit's size); `newton_tol`, `max_newton_steps`: the corrector.
 
-    A grazing point (a [`grazejax.GrazingPoint`][], or `kind="grazing"` with an
-    [`grazejax.Orbit`][] near grazing as `point`) is followed by
-    [`grazejax.continue_grazing`][], which continues in its first parameter: here it is
-    given (ν, μ) ↦ `args_of(μ, ν)` and returns its [`grazejax.GrazingCurve`][] with `mu`
+    A grazing point (a `grazejax.GrazingPoint`, or `kind="grazing"` with an
+    `grazejax.Orbit` near grazing as `point`) is followed by
+    `grazejax.continue_grazing`, which continues in its first parameter: here it is
+    given (ν, μ) ↦ `args_of(μ, ν)` and returns its `grazejax.GrazingCurve` with `mu`
     and `nu` as here (`mu_range` bounds μ; `fixed_period` and `fix` are not used: the
     point's orbit says whether it is forced).
 
-    **Returns:** a [`grazejax.BifurcationCurve`][], with the codimension-two points met
+    **Returns:** a `grazejax.BifurcationCurve`, with the codimension-two points met
     in `codim2`.
 
     **Example** (the ball on a vibrating table: the period-doubling point of its period-1

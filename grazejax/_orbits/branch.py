@@ -21,14 +21,14 @@ from .periodic import Orbit
 
 @dataclasses.dataclass(frozen=True)
 class GrazingPoint:
-    r"""A grazing bifurcation found by [`grazejax.continue_orbit`][].
+    r"""A grazing bifurcation found by `grazejax.continue_orbit`.
 
     - `mu`: its parameter value: located to `locate_tol` by bisection where two families
       meet; where a family ends, extrapolated to zero virtual depth (−v²/(2a) is linear in
       μ near the end, whose bisection stops short of the square-root tip).
-    - `orbit`: the grazing orbit ([`grazejax.Orbit`][]) at `mu`.
+    - `orbit`: the grazing orbit (`grazejax.Orbit`) at `mu`.
     - `surface`, `time`, `point`, `depth`: the grazing contact (the contact of `orbit` with
-      the smallest |virtual depth|, see [`grazejax.Contacts`][]).
+      the smallest |virtual depth|, see `grazejax.Contacts`).
     - `impacts_before`, `impacts_after`: impacts per period on the family continuation
       came from and on the one it went on with (None if it ended).
     - `kind`: `"persistence"` (the family goes on with the other impact count),
@@ -48,10 +48,10 @@ class GrazingPoint:
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class SpecialPoint:
-    r"""A bifurcation of a smooth family found by [`grazejax.continue_orbit`][].
+    r"""A bifurcation of a smooth family found by `grazejax.continue_orbit`.
 
     Each is detected between two points of the branch by its test function and then
-    solved by its defining system ([`grazejax.locate_bifurcation`][]: the orbit, μ and the
+    solved by its defining system (`grazejax.locate_bifurcation`: the orbit, μ and the
     test function together, by Newton's method, to the corrector's tolerance):
 
     - `kind`: `"period-doubling"` (a real multiplier through −1: Π(1 + ρ_i) changes sign),
@@ -66,11 +66,11 @@ class SpecialPoint:
       linear interpolation for Neimark–Sacker), kept because Newton failed there.
     - `fixed_period`: the family's orbits have a fixed (forced) period.
     - `eigenvector`: for period doubling, the real eigenvector of the multiplier −1
-      (the direction of the period-2 orbits: [`grazejax.period_doubled_orbit`][]).
+      (the direction of the period-2 orbits: `grazejax.period_doubled_orbit`).
     - `label`: a short label for diagrams (`"PD"`, `"LP"`, `"NS"`).
 
-    A `SpecialPoint` is the start `point` of [`grazejax.locate_bifurcation`][] and
-    [`grazejax.continue_bifurcation`][].
+    A `SpecialPoint` is the start `point` of `grazejax.locate_bifurcation` and
+    `grazejax.continue_bifurcation`.
     """
 
     kind: str
@@ -90,7 +90,7 @@ class SpecialPoint:
 
 
 class Branch(eqx.Module):
-    r"""A continued family of periodic orbits ([`grazejax.continue_orbit`][]). NumPy arrays.
+    r"""A continued family of periodic orbits (`grazejax.continue_orbit`). NumPy arrays.
 
     **Fields:**
 
@@ -102,12 +102,12 @@ class Branch(eqx.Module):
     - `x_min`, `x_max`: `(N, n)` extremes of each coordinate along the orbit
       (amplitude for bifurcation diagrams).
     - `poincare_determinant`: the (A6) determinant per point.
-    - `grazing`: the [`grazejax.GrazingPoint`][]s met, in order.
-    - `status`: a [`grazejax.ContinuationStatus`][] (shown by name; equal to its
+    - `grazing`: the `grazejax.GrazingPoint`s met, in order.
+    - `status`: a `grazejax.ContinuationStatus` (shown by name; equal to its
       integer code); `message` reads it.
-    - `settings`: the [`grazejax.SolverSettings`][] of the continuation (every point is a
+    - `settings`: the `grazejax.SolverSettings` of the continuation (every point is a
       converged orbit: a point whose corrector fails is never recorded).
-    - `special_points`: the [`grazejax.SpecialPoint`][]s (period doubling, folds,
+    - `special_points`: the `grazejax.SpecialPoint`s (period doubling, folds,
       Neimark–Sacker) met on smooth stretches, in order.
     """
 

@@ -1,6 +1,6 @@
 """Where an orbit meets or nearly meets its surfaces: impacts, near-grazing passes
-([`grazejax.orbit_contacts`][]) and the branches they lead to
-([`grazejax.grazing_branches`][])."""
+(`grazejax.orbit_contacts`) and the branches they lead to
+(`grazejax.grazing_branches`)."""
 
 from __future__ import annotations
 
@@ -34,7 +34,7 @@ from .periodic import Orbit
 
 
 class Contacts(eqx.Module):
-    r"""Where an orbit meets or nearly meets its surfaces ([`grazejax.orbit_contacts`][]).
+    r"""Where an orbit meets or nearly meets its surfaces (`grazejax.orbit_contacts`).
 
     One row per impact and per local minimum of a gap Φ_i along a flight (inside the
     closed piece), sorted by time. NumPy arrays.
@@ -100,9 +100,9 @@ def orbit_contacts(scene: Scene, orbit: Orbit, args=None, *, num_samples: int = 
 
     Passes are local minima of Φ_i along the flights, found on `num_samples` samples of
     one period and refined by a Newton step on dΦ/dt = 0 with the exact state; only those
-    inside the closed piece with |min Φ_i| ≤ `max_depth` are kept. See [`grazejax.Contacts`][]
+    inside the closed piece with |min Φ_i| ≤ `max_depth` are kept. See `grazejax.Contacts`
     for the signed depth (the indicator used to locate grazing bifurcations).
-    `atol=None`: scaled to the orbit's size, as in [`grazejax.find_periodic_orbit`][].
+    `atol=None`: scaled to the orbit's size, as in `grazejax.find_periodic_orbit`.
     """
     atol = atol_for(orbit, rtol, atol)
     pmap = PeriodMap(scene=scene, end_impacts=0, solver=solver, rtol=float(rtol),
@@ -161,7 +161,7 @@ def orbit_contacts(scene: Scene, orbit: Orbit, args=None, *, num_samples: int = 
 
 
 class GrazingBranches(eqx.Module):
-    r"""The one-sided linearizations of a grazing orbit ([`grazejax.grazing_branches`][]).
+    r"""The one-sided linearizations of a grazing orbit (`grazejax.grazing_branches`).
 
     With l grazing contacts, a neighbouring solution impacts or not at each of them, and
     the paper's (A4) splits the variational system into m ≤ 2^l periodic systems. Row b
@@ -247,7 +247,7 @@ def grazing_branches(scene: Scene, orbit: Orbit, args=None, *, contact_tol: floa
     simply be evaluated on the grazing orbit. Instead, for each impact pattern, we take
     neighbours of the orbit that realize it (each contact's depth set to ±δ through a
     perturbation of the start inside the section Σ), compute the Jacobian of their return
-    map to Σ with `jax.jacfwd` through [`grazejax.simulate`][], and extrapolate to δ → 0
+    map to Σ with `jax.jacfwd` through `grazejax.simulate`, and extrapolate to δ → 0
     by least squares in (1, √δ, δ) (the impacting side converges like v ∝ √δ). For an
     autonomous orbit the return map to Σ removes the phase: the 1/v divergence of an
     impact is along the flow (a time shift of order √δ) and does not survive the
@@ -258,13 +258,13 @@ def grazing_branches(scene: Scene, orbit: Orbit, args=None, *, contact_tol: floa
 
     **Arguments:**
 
-    - `scene`, `orbit`, `args`: the orbit (from [`grazejax.find_periodic_orbit`][]).
+    - `scene`, `orbit`, `args`: the orbit (from `grazejax.find_periodic_orbit`).
     - `contact_tol`: contacts with |virtual depth| ≤ this are grazing
-      (see [`grazejax.orbit_contacts`][]).
+      (see `grazejax.orbit_contacts`).
     - `depths`: neighbour depths δ (default 1e-4·4^(−m), m = 0…5, in units of Φ).
-    - `solver`, `rtol`, `atol`: for [`grazejax.simulate`][].
+    - `solver`, `rtol`, `atol`: for `grazejax.simulate`.
 
-    **Returns:** a [`grazejax.GrazingBranches`][]. An orbit without grazing contacts has a
+    **Returns:** a `grazejax.GrazingBranches`. An orbit without grazing contacts has a
     single branch (its own linearization).
     """
     atol = atol_for(orbit, rtol, atol)

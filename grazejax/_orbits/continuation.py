@@ -1,6 +1,6 @@
 r"""Continuation of periodic orbits in a scalar parameter μ, through grazing bifurcations.
 
-[`grazejax.continue_orbit`][] follows a family of periodic orbits by pseudo-arclength
+`grazejax.continue_orbit` follows a family of periodic orbits by pseudo-arclength
 continuation in (T, x0, μ) (or (x0, μ) for forced systems): a secant/tangent predictor,
 an `optimistix` Newton corrector on the Poincaré criterion (paper eq. periodpar) bordered
 by the arclength condition, and an adaptive step. The period map is the full impact
@@ -19,7 +19,7 @@ between two accepted points and located by bisection along the arclength, to
   up and continued; if there is none the branch ends there (the family disappears:
   ex1dof's impacting cycle at μ ≈ −0.106, whose impact speed tends to 0).
 
-[`grazejax.plot_bifurcation_diagram`][] draws the branches (amplitude vs μ, stable solid,
+`grazejax.plot_bifurcation_diagram` draws the branches (amplitude vs μ, stable solid,
 unstable dashed, coloured by impacts per period, grazing points marked) and saves a PNG.
 """
 
@@ -123,8 +123,8 @@ def continue_orbit(
 
     **Arguments:**
 
-    - `scene`: a [`grazejax.Scene`][].
-    - `orbit`: a periodic orbit at `mu_start` (from [`grazejax.find_periodic_orbit`][]).
+    - `scene`: a `grazejax.Scene`.
+    - `orbit`: a periodic orbit at `mu_start` (from `grazejax.find_periodic_orbit`).
       It is re-phased to start in the middle of its longest flight (away from impacts),
       so that changes of the impact count show up as grazing, not as a moving start, and
       solved again there by the continuation's own corrector (with μ = mu_start held).
@@ -144,13 +144,13 @@ def continue_orbit(
     - `switch_branches`: look for the other family where the continued one ends at a
       grazing point.
     - `progress`: a tqdm progress bar (points computed).
-    - `rtol`, `atol`, `solver`: for [`grazejax.simulate`][] (`atol=None`: `1e-2 · rtol`
-      times the starting orbit's size, as in [`grazejax.find_periodic_orbit`][]);
+    - `rtol`, `atol`, `solver`: for `grazejax.simulate` (`atol=None`: `1e-2 · rtol`
+      times the starting orbit's size, as in `grazejax.find_periodic_orbit`);
       `newton_tol`, `max_newton_steps`: the corrector (its absolute tolerance is
       `newton_tol` times the orbit's size).
     - `num_samples`: samples per orbit for `x_min`, `x_max`.
 
-    **Returns:** a [`grazejax.Branch`][] (its points in order of computation, across any
+    **Returns:** a `grazejax.Branch` (its points in order of computation, across any
     branch switch; `grazing` lists the grazing points).
 
     **Example** (ex1dof: the continuous cycle Ψ_μ, grazing at μ = 0, then the impacting
@@ -483,18 +483,18 @@ def period_doubled_orbit(scene: Scene, point: SpecialPoint, args, *, epsilon: fl
 
     The period-2 orbits bifurcating at a multiplier −1 lie, to first order, along its
     eigenvector e, at a distance ∝ √|μ − μ_PD| on the side where they exist. Newton
-    ([`grazejax.find_periodic_orbit`][]) is started from x0 ± ε·|x0|·e with twice the
+    (`grazejax.find_periodic_orbit`) is started from x0 ± ε·|x0|·e with twice the
     period, ε = `epsilon`, 10·`epsilon`, `epsilon`/10; the first start that converges to an
     orbit that is not the period-1 orbit (its half-period map moves x0) is returned. Ask
     for it close to the period-doubling point (|μ − μ_PD| ≲ 1e-2), then continue it.
 
-    **Arguments:** `scene`; `point` (a `"period-doubling"` [`grazejax.SpecialPoint`][]);
+    **Arguments:** `scene`; `point` (a `"period-doubling"` `grazejax.SpecialPoint`);
     `args` at the parameter where the period-2 orbit is wanted (near `point.mu`); `epsilon`;
-    `kwargs` for [`grazejax.find_periodic_orbit`][] (`rtol`, `atol`, ...;
+    `kwargs` for `grazejax.find_periodic_orbit` (`rtol`, `atol`, ...;
     `fixed_period=False` for an autonomous orbit, default True).
 
-    **Returns:** an [`grazejax.Orbit`][] (check `orbit.status`); continue it with
-    [`grazejax.continue_orbit`][] (the period-2 family). Where every start converges to
+    **Returns:** an `grazejax.Orbit` (check `orbit.status`); continue it with
+    `grazejax.continue_orbit` (the period-2 family). Where every start converges to
     the period-1 orbit run twice, that orbit with status `OrbitStatus.NOT_DOUBLED`.
     """
     if point.kind != "period-doubling" or point.eigenvector is None:

@@ -1,5 +1,5 @@
 """Floquet multipliers of a periodic orbit, stably: per-impact factors (flights and
-saltation matrices) and their product's eigenvalues ([`grazejax.floquet_multipliers`][])."""
+saltation matrices) and their product's eigenvalues (`grazejax.floquet_multipliers`)."""
 
 from __future__ import annotations
 
@@ -32,7 +32,7 @@ from .periodic import Orbit
 
 
 class Floquet(eqx.Module):
-    r"""Floquet multipliers of an orbit from per-impact factors ([`grazejax.floquet_multipliers`][]).
+    r"""Floquet multipliers of an orbit from per-impact factors (`grazejax.floquet_multipliers`).
 
     **Fields:**
 
@@ -70,7 +70,7 @@ class Floquet(eqx.Module):
 def saltation(scene: Scene, surface_index: int, t, x_pre, args) -> Array:
     """Closed-form saltation matrix of an impact on surface `surface_index` at (t, x_pre).
 
-    The matrix of [`grazejax.saltation_matrix`][] (one implementation for the package):
+    The matrix of `grazejax.saltation_matrix` (one implementation for the package):
     S = DJ + (f⁺ − DJ f⁻ − ∂J/∂t) ∇Φᵀ / (∂Φ/∂t + ∇Φ·f⁻). It diverges like 1/(∇Φ·f⁻) near a
     grazing contact; exactly at one it is the (N2) value, the identity.
     """
@@ -202,7 +202,7 @@ def floquet_multipliers(scene: Scene, orbit: Orbit, args=None, *, solver=None,
 
     The period is cut at its impacts (multiple shooting): the factors are the flight
     Jacobians Φ_i from just after impact i−1 to impact i (`jax.jacfwd` through
-    [`grazejax.simulate`][]), the closed-form saltation matrices S_i, and the last flight;
+    `grazejax.simulate`), the closed-form saltation matrices S_i, and the last flight;
     U = Φ_last S_k Φ_k ⋯ S_1 Φ_1. The multipliers are the eigenvalues of that product by a
     periodic-Schur sweep (`product_eigenvalues`), which keeps tiny
     multipliers (near grazing, det S_i ∝ v → 0) that the eigenvalues of the formed

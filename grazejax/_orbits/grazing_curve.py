@@ -1,6 +1,6 @@
 r"""Two-parameter continuation of grazing orbits: curves of grazing points in (μ, ν).
 
-[`grazejax.continue_grazing`][] follows a grazing periodic orbit (an orbit with a
+`grazejax.continue_grazing` follows a grazing periodic orbit (an orbit with a
 tangential contact with a surface Γ_i: Φ_i = 0 and dΦ_i/dt = 0 at some phase) as two
 parameters (μ, ν) vary, as COCO's `hspo` toolbox does for grazing curves. The orbit is
 phased to start *at* the contact, so the extended system is
@@ -59,7 +59,7 @@ from .periodic import Orbit, OrbitStatus
 
 
 class GrazingCurve(eqx.Module):
-    r"""A curve of grazing orbits in two parameters ([`grazejax.continue_grazing`][]).
+    r"""A curve of grazing orbits in two parameters (`grazejax.continue_grazing`).
     NumPy arrays, one row per point, in order of computation.
 
     **Fields:**
@@ -73,9 +73,9 @@ class GrazingCurve(eqx.Module):
       physical grazing orbit, clearly negative if the orbit crosses the surface elsewhere.
     - `num_impacts`: impacts per period on the *other* surfaces.
     - `surface`: the index of the grazed surface.
-    - `status`: a [`grazejax.ContinuationStatus`][] (shown by name; equal to its
+    - `status`: a `grazejax.ContinuationStatus` (shown by name; equal to its
       integer code); `message` reads it.
-    - `settings`: the [`grazejax.SolverSettings`][] used.
+    - `settings`: the `grazejax.SolverSettings` used.
     """
 
     mu: Any
@@ -281,11 +281,11 @@ def continue_grazing(
 
     **Arguments:**
 
-    - `scene`: a [`grazejax.Scene`][].
-    - `point`: where to start: a [`grazejax.GrazingPoint`][] (from
-      [`grazejax.continue_orbit`][]'s `branch.grazing`) or an [`grazejax.Orbit`][] near
+    - `scene`: a `grazejax.Scene`.
+    - `point`: where to start: a `grazejax.GrazingPoint` (from
+      `grazejax.continue_orbit`'s `branch.grazing`) or an `grazejax.Orbit` near
       grazing (its contact with the smallest |virtual depth| is used, see
-      [`grazejax.orbit_contacts`][]). It only needs to be close: the first point is solved
+      `grazejax.orbit_contacts`). It only needs to be close: the first point is solved
       at μ = `mu_start` with ν free.
     - `args_of`: `args_of(mu, nu) -> args`, traceable. Pass the same function object
       across calls to reuse the compiled programs.
@@ -299,14 +299,14 @@ def continue_grazing(
       `period_of(mu, nu)` (e.g. `lambda omega, sigma: 2 * jnp.pi / omega`); default: the
       orbit's period, fixed.
     - `ds`, `ds_min` (default `1e-3 * ds`), `ds_max`: arclength steps in (s, x0, μ, ν),
-      adapted as in [`grazejax.continue_orbit`][].
-    - `max_points`, `progress`: as in [`grazejax.continue_orbit`][].
-    - `rtol`, `atol`, `solver`: for [`grazejax.simulate`][] (`atol=None`: scaled to the
+      adapted as in `grazejax.continue_orbit`.
+    - `max_points`, `progress`: as in `grazejax.continue_orbit`.
+    - `rtol`, `atol`, `solver`: for `grazejax.simulate` (`atol=None`: scaled to the
       orbit's size); `newton_tol`, `max_newton_steps`: the corrector (absolute tolerance
       `newton_tol` times the orbit's size).
     - `num_samples`: samples per orbit for `min_gap`.
 
-    **Returns:** a [`grazejax.GrazingCurve`][].
+    **Returns:** a `grazejax.GrazingCurve`.
 
     **Example** (the forced oscillator x'' + 0.1x' + x = cos(ωt) with a stop at x = σ:
     the grazing curve σ(ω) is the free response's amplitude):
@@ -391,7 +391,7 @@ def locate_grazing(
     r"""Solve a grazing orbit by its defining system at ν: the μ at which the orbit
     touches surface Γ_i tangentially, differentiable in ν.
 
-    The system is [`grazejax.continue_grazing`][]'s with ν given: P(x0) − x0 = 0 (the flow
+    The system is `grazejax.continue_grazing`'s with ν given: P(x0) − x0 = 0 (the flow
     without the grazed surface), Φ_i(t0, x0) = 0, dΦ_i/dt(t0, x0) = 0, in (t0, x0, μ)
     for forced orbits (period `period_of(mu, nu)`, default the orbit's) or (T, x0, μ) for
     autonomous ones. Newton's method (`optx.root_find`); the point is a function of ν by
@@ -400,17 +400,17 @@ def locate_grazing(
 
     **Arguments:**
 
-    - `point`: a [`grazejax.GrazingPoint`][] or an [`grazejax.Orbit`][] near grazing (its
+    - `point`: a `grazejax.GrazingPoint` or an `grazejax.Orbit` near grazing (its
       contact with the smallest |virtual depth|, on `surface` if given), as in
-      [`grazejax.continue_grazing`][].
+      `grazejax.continue_grazing`.
     - `args_of(mu, nu) -> args`; `nu` (may be traced); `mu`: the guess of μ (default
       `point.mu`; required for an `Orbit`); `nu_guess`: the ν at which an `Orbit` guess
       was computed (default `nu`; its contact is found at (`mu`, `nu_guess`), so pass it
       when `nu` is traced, e.g. under `jax.jacfwd`).
-    - `rtol`, `atol`, `solver`: for [`grazejax.simulate`][]; `newton_tol`, `max_newton_steps`:
+    - `rtol`, `atol`, `solver`: for `grazejax.simulate`; `newton_tol`, `max_newton_steps`:
       Newton's relative tolerance and iterations; `adjoint`: `simulate`'s for the runs.
 
-    **Returns:** a [`grazejax.BifurcationPoint`][] of kind `"grazing"`: `mu`, `nu`, the
+    **Returns:** a `grazejax.BifurcationPoint` of kind `"grazing"`: `mu`, `nu`, the
     contact's time `t0` and state `x0` (the orbit starts at it), `period`, the multipliers
     of the flow without the grazed surface, `test_value` = dΦ_i/dt at the contact (≈ 0),
     `num_impacts` on the other surfaces, `status`.

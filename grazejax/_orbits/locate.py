@@ -42,9 +42,9 @@ def locate_bifurcation(
 
     **Arguments:**
 
-    - `scene`: a [`grazejax.Scene`][].
-    - `point`: the guess: a [`grazejax.SpecialPoint`][] or [`grazejax.GrazingPoint`][]
-      from [`grazejax.continue_orbit`][], or any object with `mu`, `x0`, `t0`, `period` and
+    - `scene`: a `grazejax.Scene`.
+    - `point`: the guess: a `grazejax.SpecialPoint` or `grazejax.GrazingPoint`
+      from `grazejax.continue_orbit`, or any object with `mu`, `x0`, `t0`, `period` and
       (unless `kind` is given) `kind`.
     - `args_of(mu, nu) -> args`: the scene's parameters at (μ, ν).
     - `nu`: the second parameter (may be traced: the result is differentiable in it).
@@ -56,18 +56,18 @@ def locate_bifurcation(
       period, x0 and μ with x_j held at the guess's value (`fix`: j; default the j with the
       largest |f_j(x0)|).
     - `rtol`, `atol`, `solver`, `max_impacts`, `max_solver_steps`: passed to
-      [`grazejax.simulate`][] (`atol=None`: `1e-2 · rtol` times the orbit's size).
+      `grazejax.simulate` (`atol=None`: `1e-2 · rtol` times the orbit's size).
     - `newton_tol`, `max_newton_steps`: Newton's relative tolerance and iterations.
     - `adjoint`: `simulate`'s for Newton's runs: the default (`diffrax.ForwardMode()`)
       lets `jax.jacfwd` differentiate the point, `diffrax.DirectAdjoint()` `jax.grad` too.
 
-    **Returns:** a [`grazejax.BifurcationPoint`][]; failure is a status, never an
+    **Returns:** a `grazejax.BifurcationPoint`; failure is a status, never an
     exception inside `jit`.
 
     The orbit starts away from impacts (x0 is not a post-impact state): take `point.t0`
-    between impacts, as [`grazejax.continue_orbit`][]'s points are.
+    between impacts, as `grazejax.continue_orbit`'s points are.
 
-    A grazing point is solved by [`grazejax.locate_grazing`][] (its defining system: the
+    A grazing point is solved by `grazejax.locate_grazing` (its defining system: the
     orbit periodic, Φ = 0 and dΦ/dt = 0 at the contact), with `period_of`, `rtol`, `atol`,
     `solver`, `newton_tol`, `max_newton_steps` and `adjoint` passed on; whether its orbit is
     forced comes from the point's orbit (`fixed_period`, `fix`, `max_impacts` and

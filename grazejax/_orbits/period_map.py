@@ -1,8 +1,8 @@
 """The period map, the floor of the orbit package: one flight of `simulate` over a
 period, its linearization, sampling, the (A5) verdict and the tolerance conventions.
 
-[`grazejax.find_periodic_orbit`][], [`grazejax.continue_orbit`][], the bifurcation systems
-and [`grazejax.continue_grazing`][] all solve for fixed points of this map with the same
+`grazejax.find_periodic_orbit`, `grazejax.continue_orbit`, the bifurcation systems
+and `grazejax.continue_grazing` all solve for fixed points of this map with the same
 tolerance scaling; every orbit module reaches `simulate` through it.
 """
 
@@ -30,7 +30,7 @@ from .._status import Status
 
 @dataclasses.dataclass(frozen=True)
 class SolverSettings:
-    """The settings an [`grazejax.Orbit`][] or [`grazejax.Branch`][] was computed with.
+    """The settings an `grazejax.Orbit` or `grazejax.Branch` was computed with.
 
     - `solver`: the Diffrax solver's class name (`"default"` for `simulate`'s own choice).
     - `rtol`, `atol`: the simulation's tolerances, `atol` as actually used (after scaling

@@ -3,17 +3,17 @@ r"""Periodic orbits of impact systems: shooting, monodromy, Floquet multipliers,
 Paper objects (Akhmet & Kıvılcım, *Discontinuous dynamics with grazing points*, §4–§5):
 
 - the Poincaré criterion S(T, ζ) = x(T; ζ) − ζ = 0 with one coordinate ζ_j fixed
-  (eq. periodpar), solved by Newton's method ([`grazejax.find_periodic_orbit`][]);
+  (eq. periodpar), solved by Newton's method (`grazejax.find_periodic_orbit`);
 - its Jacobian at the solution, the (A6) matrix [∂S/∂T, ∂S/∂ζ_k (k ≠ j)], and the
   monodromy matrix U(ω) of the variational system (eq. graz1lin1);
 - the Floquet multipliers and the (A5) verdict, computed stably from per-impact factors
-  ([`grazejax.floquet_multipliers`][]);
+  (`grazejax.floquet_multipliers`);
 - at a grazing orbit, the (up to 2^l) one-sided variational systems of (A4), impacting or
-  not at each grazing contact ([`grazejax.grazing_branches`][]).
+  not at each grazing contact (`grazejax.grazing_branches`).
 
 **The period map and where the period ends.** Solutions are left-continuous (docs/semantics.md).
 If x0 is away from the orbit's impacts the period map is the time-T map
-P(x0, T) = x(t0 + T; t0, x0) of [`grazejax.simulate`][]. The paper starts its cycles *at*
+P(x0, T) = x(t0 + T; t0, x0) of `grazejax.simulate`. The paper starts its cycles *at*
 an impact (x1 = 0 in ex1dof and smalldisc). Then x0 is read as the post-impact state
 x(θ+) (a flight that starts on a surface never impacts at its start, so the flight from
 x(θ+) is the orbit's), and the period ends **just after** the impact that closes it:
@@ -160,7 +160,7 @@ class OrbitStatus(StatusCode):
 
 
 class Orbit(ImpactLog):
-    r"""A periodic orbit found by [`grazejax.find_periodic_orbit`][].
+    r"""A periodic orbit found by `grazejax.find_periodic_orbit`.
 
     **Fields:**
 
@@ -169,7 +169,7 @@ class Orbit(ImpactLog):
     - `period`: the period T (the paper's 𝒯, or ω).
     - `num_impacts`: impacts per period.
     - `impact_times`, `impact_pre`, `impact_post`, `impact_surface`, `impact_kind`: the
-      impacts in (t0, t0 + T], an [`grazejax.ImpactLog`][] (NaN-padded to `max_impacts`).
+      impacts in (t0, t0 + T], an `grazejax.ImpactLog` (NaN-padded to `max_impacts`).
     - `monodromy`: U(T), the Jacobian of the period map x0 ↦ P(x0, T) (module docstring).
     - `multipliers`: eigenvalues of `monodromy`, complex, sorted by modulus, descending.
       For an autonomous orbit one of them is the trivial multiplier 1.
@@ -178,13 +178,13 @@ class Orbit(ImpactLog):
       Forced (`fixed_period=True`): ∂S/∂ζ = U − I.
     - `poincare_determinant`: its determinant; (A6) asks for it to be non-zero.
     - `residual`: ‖P(x0, T) − x0‖∞ at the result.
-    - `status`: an [`grazejax.OrbitStatus`][] code; `message` reads it.
+    - `status`: an `grazejax.OrbitStatus` code; `message` reads it.
     - `fix`: the fixed coordinate j (−1 for `fixed_period=True`).
     - `num_steps`: Newton iterations taken.
     - `start_at_impact`: whether x0 is a post-impact state and the period ends just after
       an impact (static).
     - `fixed_period`: whether T was held fixed (forced systems; static).
-    - `settings`: the [`grazejax.SolverSettings`][] it was computed with (static).
+    - `settings`: the `grazejax.SolverSettings` it was computed with (static).
 
     Only a converged orbit (`status == SUCCESS`) is a periodic orbit: for any other status
     `x0`, `period`, `monodromy` and `multipliers` describe the last Newton iterate, and
@@ -638,7 +638,7 @@ def find_periodic_orbit(
 
     **Arguments:**
 
-    - `scene`: a [`grazejax.Scene`][].
+    - `scene`: a `grazejax.Scene`.
     - `x0`: guess of the orbit's state at `t0`. It may lie on a surface: if the orbit
       impacts there, x0 is read as the *post-impact* state and the period ends just after
       the closing impact (module docstring).
@@ -655,7 +655,7 @@ def find_periodic_orbit(
     - `start_at_impact`: whether x0 is a post-impact state (see above). Default: detected
       from the guess (x0 on a surface that the guess trajectory meets again near t0 + T).
       Under `jit`/`vmap`/`jacfwd` (traced inputs) pass it, and `num_impacts` if True.
-    - `rtol`, `atol`, `solver`, `max_solver_steps`: passed to [`grazejax.simulate`][].
+    - `rtol`, `atol`, `solver`, `max_solver_steps`: passed to `grazejax.simulate`.
       The orbit cannot be more accurate than the simulation; in weakly contracting
       directions (multiplier ρ near 1) the error is that of one period divided by |1 − ρ|.
       `atol=None` (default) scales it to the orbit: `1e-2 · rtol · s` with s = max |x0| of
@@ -668,13 +668,13 @@ def find_periodic_orbit(
     - `max_newton_steps`: Newton iterations.
     - `newton_tol`: relative tolerance on the residual and the Newton step.
     - `max_impacts`: size of the impact log (impacts per period must not exceed it).
-    - `adjoint`: [`grazejax.simulate`][]'s, for the runs that Newton's method solves.
+    - `adjoint`: `grazejax.simulate`'s, for the runs that Newton's method solves.
       The default (`diffrax.ForwardMode()`) lets `jax.jacfwd` differentiate the orbit with
       respect to `args` (implicit function theorem); `diffrax.DirectAdjoint()` also lets
       `jax.grad` do it. Newton linearises in forward mode, so the reverse-only
       `diffrax.RecursiveCheckpointAdjoint()` is a `ValueError`.
 
-    **Returns:** an [`grazejax.Orbit`][] (with the [`grazejax.SolverSettings`][] used).
+    **Returns:** an `grazejax.Orbit` (with the `grazejax.SolverSettings` used).
     Failure is a status (`orbit.message`), never an exception inside `jit`; a diverged
     solve returns its starting point (the guess, after the phase refinement) with the
     diagnostics there, never NaN, and `orbit.stable` is then False (no verdict).
@@ -815,7 +815,7 @@ def _impact_start(pmap, x_guess, t0, period, args, start_at_impact, num_impacts)
 
 def _settings_used(solver, rtol, atol, root_finder, newton_tol, scale, max_newton_steps,
                    max_solver_steps, max_impacts) -> SolverSettings:
-    """The [`grazejax.SolverSettings`][] of a solve: a user's root finder reports its own
+    """The `grazejax.SolverSettings` of a solve: a user's root finder reports its own
     tolerances (NaN where it has none), the default ones are scaled to the orbit."""
     if root_finder is not None:
         newton_rtol, newton_atol = (_host_float(getattr(root_finder, name, math.nan))
