@@ -181,11 +181,16 @@ def _sample_one(ctx: LoopContext, step: _StepView, i: int, piece, sign):
                                     tuple(half_flags), floor, c.restart[i], known,
                                     whole.g_start)
         worst = jnp.zeros_like(g_a)
+        # A tangential lift-off (`step_ends`: ġ(sa) = 0 to round-off, the flight rising)
+        # has g ≈ g̈·s²/2 from the surface: a bound with a safety factor on g'' can never
+        # prove such a gap positive, at any step length, so its step is left to the
+        # halves' tests, which judge it from the lift-off point.
+        lifting = whole.s_start > sa
         for j, flag in enumerate(flags):
             resolved, ratio = part_resolution(
                 values[j], values[j + 1], theta_slopes[j], theta_slopes[j + 1],
-                PART_FRACTIONS[j + 1] - PART_FRACTIONS[j], curvature, floor, known, flag,
-                c.restart[i] & (j == 0),
+                PART_FRACTIONS[j + 1] - PART_FRACTIONS[j], curvature, floor, known,
+                flag | lifting, c.restart[i] & (j == 0),
             )
             ok = ok & resolved
             worst = jnp.maximum(worst, ratio)
