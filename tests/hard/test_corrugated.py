@@ -56,8 +56,8 @@ def test_corrugated_floors_default_campaign():
 @pytest.mark.slow
 @pytest.mark.parametrize("solver", sorted(C.SOLVERS))
 def test_corrugated_floors_slow_campaign(solver):
-    """`GRAZEJAX_CORRUGATED_SYSTEMS` systems per solver (2,500 by default)."""
-    n = int(os.environ.get("GRAZEJAX_CORRUGATED_SYSTEMS", "2500"))
+    """`GRAZEJAX_CORRUGATED_SYSTEMS` systems per solver (1,000 by default)."""
+    n = int(os.environ.get("GRAZEJAX_CORRUGATED_SYSTEMS", "1000"))
     report = C.run_campaign(n, seed=2026, solvers=(solver,))
     print(report)
     _assert_clean(report)
