@@ -53,8 +53,37 @@ def test_corrugated_floors_default_campaign():
     _assert_clean(report)
 
 
+# A known miss, kept failing on purpose until the search is fixed (strict: the test fails
+# once it passes, so the mark goes with the defect). System 798 of seed 2026: a shaking floor
+# whose gap oscillates five times in one exact step after a landing (ω·h ≈ 31, more than a
+# period per part); the five samples' differences show a quarter of the true curvature, so
+# even twice that (the safety factor) bounds too little, and a dip 0.039 deep in the first
+# part is "proved" clear. Every solver misses it the same way (the flights are exact).
+KNOWN_MISS = pytest.mark.xfail(
+    strict=True,
+    reason="seed 2026 system 798: the samples underestimate the gap's curvature by more than "
+           "the safety factor where a part spans more than one corrugation (docs/hard_cases.md)",
+)
+
+
+def test_the_known_miss_is_still_missed_with_tsit5():
+    """The known miss of the slow campaign, as one cheap run: its flight after the third
+    landing dips 0.039 below the floor before the logged impact. When the search finds it,
+    this test fails: drop it and `KNOWN_MISS` together."""
+    x0, p = C.draw(1000, 2026)
+    x0, p = x0[798:799], {key: value[798:799] for key, value in p.items()}
+    args = {key: jnp.asarray(value[0]) for key, value in p.items()}
+    sol = gj.simulate(C.SCENE, jnp.asarray(x0[0]), 0.0, C.T1, args, rtol=1e-10, atol=1e-10,
+                      max_impacts=C.MAX_IMPACTS)
+    out = [np.asarray(a)[None] for a in (sol.status, sol.num_impacts, sol.impact_times,
+                                         sol.impact_post, sol.impact_pre, sol.t_final)]
+    misses, _, depth = C.judge(x0, p, *out)
+    assert int(misses[0]) == 1 and 0.03 < depth.max() < 0.05
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("solver", sorted(C.SOLVERS))
+@KNOWN_MISS
 def test_corrugated_floors_slow_campaign(solver):
     """`GRAZEJAX_CORRUGATED_SYSTEMS` systems per solver (1,000 by default)."""
     n = int(os.environ.get("GRAZEJAX_CORRUGATED_SYSTEMS", "1000"))
