@@ -151,7 +151,8 @@ def _sample_one(ctx: LoopContext, step: _StepView, i: int, piece, sign):
     check_rates = tuple(map(rate, CHECK_FRACTIONS))
     checks = tuple((value, h * slope) for value, slope in check_rates)
     step_slopes = tuple(h * r for r in slopes)
-    # The four parts between the samples, searched in turn (`detect._first_contact`).
+    # The four parts between the samples, with their end tests' flags: the curvature
+    # bound judges each part (`envelope.part_resolution`); a flagged part is left to the search.
     inner = (
         (fraction_time(CHECK_FRACTIONS[0], sa, sb), *check_rates[0]),
         (step.s_mid, g_mid, slope_mid),
