@@ -28,6 +28,7 @@ Design (and why it is not a loop of `diffeqsolve` calls with a `diffrax.Event`):
 """
 
 import functools
+import inspect
 
 import diffrax
 import equinox as eqx
@@ -46,7 +47,7 @@ from ._roots import AbstractBracketedRootFinder
 from ._scene import Scene
 from ._solution import ACCEPTED, FIELD_FIX, SimulationError, Solution, failure_message
 from ._status import Status
-from ._validate import is_concrete, validate_inputs
+from ._validate import has_values, validate_inputs
 
 # --------------------------------------------------------------------------------------
 # simulate
@@ -80,10 +81,12 @@ def simulate(
     r"""Simulate x' = f(t, x) with jumps x → J_i(x) on the surface pieces Γ_i, from t0 to t1.
 
     One call is one XLA program: it works under `jax.jit`, `jax.vmap` (batched `x0` and
-    `args` leaves) and `jax.jacfwd` (with respect to `x0` and `args`). Called outside any
-    transformation, it checks its inputs and runs a program compiled once per scene object
-    and options (with `grazejax.compiler_options(batched=False)`) and kept: new `x0`, `t0`,
-    `t1` and numbers in `args` do not compile it again. What counts as an impact, a grazing
+    `args` leaves) and `jax.jacfwd` (with respect to `x0` and `args`). Called outside `jit` and `vmap` (or under
+    an eager `jax.jvp`, `jax.jacfwd`, `jax.grad`), it checks its inputs and runs a program
+    compiled once per scene object and options (with
+    `grazejax.compiler_options(batched=False)`) and kept: new `x0`, `t0`, `t1`, numbers in
+    `args`, `rtol`, `atol`, `zeno_rtol` and `dt0` do not compile it again, and the second
+    eager `jax.jacfwd` or `jax.grad` of a call reuses the first one's program. What counts as an impact, a grazing
     contact, Zeno and sticking is written down exactly in docs/semantics.md.
 
     **Arguments:**
@@ -152,15 +155,18 @@ def simulate(
         zeno=zeno, adjoint=adjoint, check_field_jumps=check_field_jumps,
         allow_float32=allow_float32, event_root_finder=event_root_finder,
     )
-    if is_concrete(scene, x0, t0, t1, args, saveat, options):
-        # Outside any transformation: check the inputs here, where their values are known,
-        # then run one cached XLA program, compiled once per scene and options.
+    if has_values(scene, x0, t0, t1, args, saveat, options):
+        # Outside jit and vmap (eager, or under an eager jvp/jacfwd/grad, whose primals are
+        # values): check the inputs here, where their values are known, then run one cached
+        # XLA program, compiled once per scene and options. JAX caches the program's
+        # transforms too, so a second eager `jax.jacfwd` of the same call is not compiled
+        # again.
         checked = validate_inputs(
             scene, x0, t0, t1, args, max_impacts=max_impacts, max_steps=max_steps,
             direction=direction, allow_float32=allow_float32, saveat=saveat,
             check_scene=False,  # `prepare` checks it when the run compiles
         )
-        sol = _run_compiled(scene, checked, _traced_numbers(args), options)
+        sol = _run_compiled(scene, checked, _traced_numbers(args), _traced_options(options))
     else:
         sol = _run(scene, x0, t0, t1, args, saveat=saveat, direction=direction, **options)
     _raise_if_bad_input(sol)
@@ -206,7 +212,8 @@ def _run_compiled(scene, checked, args, options) -> Solution:
     is_input = tuple(eqx.is_array(leaf) for leaf in leaves)
     inputs = [leaf for leaf, dynamic in zip(leaves, is_input, strict=True) if dynamic]
     static = tuple(None if dynamic else leaf for leaf, dynamic in zip(leaves, is_input, strict=True))
-    key = (scene, checked.sigma, checked.ts is None, tree, static)
+    top_level = _runs_at_top_level((checked.x0, checked.t0, checked.t1, inputs))
+    key = (scene, checked.sigma, checked.ts is None, tree, static, top_level)
     try:
         run = _COMPILED.get(key)
     except TypeError as error:
@@ -223,9 +230,23 @@ def _run_compiled(scene, checked, args, options) -> Solution:
                 tree, [next(given) if leaf is None else leaf for leaf in static])
             return _run(scene, x0, t0, t1, args_, saveat=ts, direction=sigma, **options_)
 
-        run = jax.jit(program, compiler_options=compiler_options(batched=False))
+        # Compiler options are for top-level programs only: under `jax.grad` the program is
+        # staged into the linearized one, which JAX compiles with its own options.
+        run = jax.jit(program, compiler_options=compiler_options(batched=False)
+                      if top_level else None)
         _COMPILED[key] = run
     return run(checked.x0, checked.t0, checked.t1, checked.ts, inputs)
+
+
+def _runs_at_top_level(tree) -> bool:
+    """Whether a `jax.jit` called on `tree` compiles as its own program: eagerly, or under an
+    eager `jax.jvp`/`jax.jacfwd`, not under the linearization of `jax.grad`/`jax.vjp`."""
+    try:
+        from jax._src.interpreters.ad import JVPTracer
+    except ImportError:  # pragma: no cover
+        return not any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves(tree))
+    return all(isinstance(leaf, JVPTracer) or not isinstance(leaf, jax.core.Tracer)
+               for leaf in jax.tree.leaves(tree))
 
 
 def _traced_numbers(args):
@@ -239,6 +260,33 @@ def _traced_numbers(args):
         return args
     return jax.tree.unflatten(tree, [jnp.asarray(leaf) if isinstance(leaf, float | np.floating)
                                      else leaf for leaf in leaves])
+
+
+# The numeric options that are inputs of the compiled run (a new value is not a new
+# program). `dt0` is one only for adaptive controllers: a constant step reads it in Python.
+_NUMERIC_OPTIONS = ("rtol", "atol", "zeno_rtol", "dt0")
+
+
+def numeric_options(options) -> dict:
+    """The numeric options of `options` (`simulate`'s defaults where absent) as arrays:
+    `{name: array}` for rtol, atol, zeno_rtol, and dt0 when given to an adaptive controller.
+    A value that is already an array stays as it is."""
+    defaults = {name: p.default for name, p in inspect.signature(simulate).parameters.items()}
+    constant_step = isinstance(options.get("stepsize_controller"), diffrax.ConstantStepSize)
+    numbers = {}
+    for name in _NUMERIC_OPTIONS:
+        value = options.get(name, defaults[name])
+        if value is None or (name == "dt0" and constant_step):
+            continue
+        if isinstance(value, bool) or not eqx.is_array_like(value):
+            continue  # (an invalid value: left to the checks that name it)
+        numbers[name] = value if eqx.is_array(value) else jnp.asarray(float(value))
+    return numbers
+
+
+def _traced_options(options):
+    """`options` with its numeric options as arrays (inputs of the compiled run)."""
+    return {**options, **numeric_options(options)}
 
 
 def prepare(scene, x0, t0, t1, args, *, saveat, direction, allow_float32, max_impacts,

@@ -43,7 +43,7 @@ from ._adjoint import loop_kinds
 from ._compiler import compiler_options
 from ._loop.pool import run_pool
 from ._scene import Scene
-from ._simulate import _throw_if_failed, prepare, simulate
+from ._simulate import _throw_if_failed, numeric_options, prepare, simulate
 from ._solution import FailedLanesWarning, Solution, failed_lanes_message
 from ._validate import saveat_times
 
@@ -351,12 +351,16 @@ def _compiled_chunk(scene, t0, t1, flags, x0_batched, devices, width, simulate_k
     """
     options = dict(simulate_kwargs)
     saveat = options.pop("saveat", None)
+    # Tolerances are inputs, like t0 and t1: a sweep at a new rtol reuses the program.
+    numbers = numeric_options(options)
+    options = {name: value for name, value in options.items() if name not in numbers}
     direction = 1 if float(t1) > float(t0) else -1
     in_axes_args = jax.tree.map(lambda b: 0 if b else None, flags)
     is_none = lambda v: v is None  # noqa: E731
     key = (scene, x0_batched, jax.tree.structure(in_axes_args, is_leaf=is_none),
            tuple(jax.tree.leaves(in_axes_args, is_leaf=is_none)),
-           tuple(sorted(options.items())), tuple(devices), direction, width, progress)
+           tuple(sorted(options.items())), tuple(sorted(numbers)), tuple(devices), direction,
+           width, progress)
     try:
         hash(key)
     except TypeError:  # unhashable option values: compile without caching
@@ -368,7 +372,7 @@ def _compiled_chunk(scene, t0, t1, flags, x0_batched, devices, width, simulate_k
                 scene, in_axes_args, x0_batched, devices, options, direction, width, progress
             )
         build = _CHUNK_CACHE[key]
-    return build(t0, t1, saveat)
+    return build(t0, t1, saveat, numbers)
 
 
 _CHUNK_CACHE: dict = {}
@@ -380,11 +384,12 @@ def _build_chunk(scene, in_axes_args, x0_batched, devices, options, direction, w
 
     if width is None:
 
-        def run(x0s, a, valid, t0, t1, saveat):
+        def run(x0s, a, valid, t0, t1, saveat, numbers):
             del valid  # padding lanes run like the others
             return jax.vmap(
                 lambda x0, aa: simulate(
-                    scene, x0, t0, t1, aa, saveat=saveat, direction=direction, **options
+                    scene, x0, t0, t1, aa, saveat=saveat, direction=direction, **options,
+                    **numbers,
                 ),
                 in_axes=(x_axis, in_axes_args),
             )(x0s, a)
@@ -395,7 +400,7 @@ def _build_chunk(scene, in_axes_args, x0_batched, devices, options, direction, w
         for own in ("saveat", "direction", "throw"):
             kw.pop(own)
 
-        def run(x0s, a, valid, t0, t1, saveat):
+        def run(x0s, a, valid, t0, t1, saveat, numbers):
             # One lane's inputs as the template: `prepare` only reads shapes and dtypes
             # from them (the values are traced).
             lane_x0 = x0s if x_axis is None else x0s[0]
@@ -406,7 +411,7 @@ def _build_chunk(scene, in_axes_args, x0_batched, devices, options, direction, w
             # (`batched`: the pool runs the program's step on a batch of lanes)
             checked, program = prepare(
                 scene, lane_x0, t0, t1, lane_args, saveat=saveat, direction=direction,
-                batched=True, **kw
+                batched=True, **{**kw, **numbers}
             )
             x0s = x0s.astype(checked.x0.dtype)  # as simulate's validate_inputs does
             return run_pool(program, x0s, a, (x_axis, in_axes_args), valid, width,
@@ -419,7 +424,7 @@ def _build_chunk(scene, in_axes_args, x0_batched, devices, options, direction, w
         def place(x, a, valid):
             return jax.device_put((x, a, valid), device)
 
-        return lambda t0, t1, saveat: _Runner(compiled, place, (t0, t1, saveat))
+        return lambda *shared: _Runner(compiled, place, shared)
 
     mesh = Mesh(np.array(devices), ("lanes",))
     xla_options = compiler_options(devices[0].platform)
@@ -433,7 +438,8 @@ def _build_chunk(scene, in_axes_args, x0_batched, devices, options, direction, w
     else:
         # Each device runs its own pool on its share of the chunk.
         compiled = jax.jit(jax.shard_map(
-            run, mesh=mesh, in_specs=(x_spec, a_specs, lanes, replicated, replicated, replicated),
+            run, mesh=mesh,
+            in_specs=(x_spec, a_specs, lanes, replicated, replicated, replicated, replicated),
             out_specs=lanes, check_vma=False,
         ), compiler_options=xla_options)
     x_sharding = NamedSharding(mesh, x_spec)
@@ -443,7 +449,7 @@ def _build_chunk(scene, in_axes_args, x0_batched, devices, options, direction, w
     def place(x, a, valid):
         return (_put(x, x_sharding), jax.tree.map(_put, a, a_sharding), _put(valid, valid_sharding))
 
-    return lambda t0, t1, saveat: _Runner(compiled, place, (t0, t1, saveat))
+    return lambda *shared: _Runner(compiled, place, shared)
 
 
 class _Runner(NamedTuple):
@@ -452,7 +458,7 @@ class _Runner(NamedTuple):
 
     compiled: Any
     place: Any
-    shared: tuple  # t0, t1, saveat
+    shared: tuple  # t0, t1, saveat, the numeric options
 
     def __call__(self, x, a, valid):
         return self.compiled(*self.place(x, a, valid), *self.shared)

@@ -39,6 +39,15 @@ def is_concrete(*trees) -> bool:
     return not any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves(trees))
 
 
+def has_values(*trees) -> bool:
+    """Every leaf has a value that Python can read: no tracer of `jit` or `vmap`. A tracer of
+    an eager `jax.jvp`, `jax.jacfwd` or `jax.grad` qualifies (its primal is a value)."""
+    for leaf in jax.tree.leaves(trees):
+        if isinstance(leaf, jax.core.Tracer) and leaf.to_concrete_value() is None:
+            return False
+    return True
+
+
 def validate_inputs(
     scene, x0, t0, t1, args, *, max_impacts, max_steps, direction, allow_float32, saveat,
     check_scene: bool = True,

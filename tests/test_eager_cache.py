@@ -7,6 +7,7 @@ program), and the results are those of the same run inside a user's `jax.jit` wi
 `compiler_options(batched=False)` (XLA:CPU's quicker emitters for one trajectory).
 """
 
+import diffrax
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -85,3 +86,80 @@ def test_scene_reading_a_value_in_python_is_a_clear_error():
     scene = gj.Scene(base.vector_field, [gj.Surface(phi=floor.phi, jump=jump, impenetrable=True)])
     with pytest.raises(TypeError, match=r"jump\(t, x, args\) reads a value in Python.*jnp.where"):
         gj.simulate(scene, jnp.array([1.0, 0.0]), 0.0, 2.0, {"g": 9.81, "e": 0.8})
+
+
+def _counting(base):
+    """`base` with a vector field that counts how often JAX traces it."""
+    traces = []
+
+    def field(t, x, args):
+        traces.append(None)
+        return base.vector_field(t, x, args)
+
+    return gj.Scene(field, base.surfaces), traces
+
+
+def test_new_tolerances_do_not_recompile():
+    """rtol, atol, zeno_rtol and dt0 are inputs of the compiled run, Python floats included."""
+    scene, traces = _counting(ex.ex1dof())
+    args, x0 = ex.ex1dof_args(0.2), jnp.array([0.5, 1.2])
+    run = lambda **tols: gj.simulate(scene, x0, 0.0, 20.0, args, max_impacts=20, **tols)  # noqa: E731
+    coarse = run(rtol=1e-6, atol=1e-8, dt0=1e-2)  # (dt0 given or not: two programs)
+    traced = len(traces)
+    fine = run(rtol=1e-10, atol=1e-12, zeno_rtol=1e-7, dt0=1e-3)
+    assert len(traces) == traced
+    # The new tolerances were used: more steps, and the coarse run's error is about its
+    # tolerance (ex1dof's flights are smooth; its 20 impacts amplify errors by ~1e2).
+    assert int(fine.num_steps) > int(coarse.num_steps)
+    err = np.max(np.abs(np.asarray(fine.x_final) - np.asarray(coarse.x_final)))
+    assert 1e-12 < err < 1e-6 * 1e3
+    # A constant step reads dt0 in Python: a new one is a new program (not an error).
+    gj.simulate(scene, x0, 0.0, 1.0, args, stepsize_controller=diffrax.ConstantStepSize(),
+                dt0=0.01)
+    assert len(traces) > traced
+
+
+def test_eager_transforms_reuse_the_program():
+    """A second eager `jax.jacfwd` / `jax.grad` of the same call runs without tracing again,
+    and each gives the derivative: central differences of the (cached) eager run, and the
+    transpose of the forward Jacobian."""
+    scene, traces = _counting(ex.bouncing_ball())
+    args, t1 = {"g": 9.81, "e": 0.8}, 1.3  # two impacts in [0, t1]
+    final = lambda x0: gj.simulate(scene, x0, 0.0, t1, args).x_final  # noqa: E731
+    x0 = jnp.array([1.0, 0.5])
+    J = jax.jacfwd(final)(x0)
+    traced = len(traces)
+    J2 = jax.jacfwd(final)(x0 + 0.01)
+    assert len(traces) == traced
+    # The ball's flights are parabolas (integrated exactly) and its impact times are Newton
+    # roots to round-off, so central differences with h = 1e-5 err by ~h² x''' ≈ 1e-9 plus
+    # round-off eps/h ≈ 1e-11.
+    h = 1e-5
+    for J_, at in ((J, x0), (J2, x0 + 0.01)):
+        fd = np.stack([(np.asarray(final(at + h * e)) - np.asarray(final(at - h * e))) / (2 * h)
+                       for e in np.eye(2)], axis=1)
+        np.testing.assert_allclose(np.asarray(J_), fd, rtol=1e-7, atol=1e-7)
+    loss = lambda x0: jnp.sum(gj.simulate(  # noqa: E731
+        scene, x0, 0.0, t1, args, adjoint=diffrax.RecursiveCheckpointAdjoint()).x_final ** 2)
+    grad = jax.grad(loss)(x0)
+    traced = len(traces)
+    grad2 = jax.grad(loss)(x0 + 0.01)
+    assert len(traces) == traced
+    for g_, J_, at in ((grad, J, x0), (grad2, J2, x0 + 0.01)):
+        np.testing.assert_allclose(np.asarray(g_), 2 * np.asarray(J_).T @ np.asarray(final(at)),
+                                   rtol=1e-12, atol=1e-12)
+
+
+def test_a_sweep_at_new_tolerances_reuses_its_program():
+    scene, traces = _counting(ex.bouncing_ball())
+    x0s = jnp.array([[1.0, 0.0], [0.5, 1.0], [2.0, -1.0]])
+    coarse = gj.sweep(scene, x0s, 0.0, 1.0, {"g": 9.81, "e": 0.8}, rtol=1e-6, progress=False)
+    traced = len(traces)
+    fine = gj.sweep(scene, x0s, 0.0, 1.0, {"g": 9.81, "e": 0.8}, rtol=1e-11, atol=1e-13,
+                    progress=False)
+    assert len(traces) == traced
+    for lane in range(3):  # each lane's impact times: the closed form, at either tolerance
+        h0, v0 = np.asarray(x0s[lane])
+        times, _ = ex.bouncing_ball_impact_times(h0, v0, 9.81, 0.8, 1)
+        for sol in (coarse, fine):
+            np.testing.assert_allclose(sol.impact_times[lane, 0], times[0], rtol=1e-9)

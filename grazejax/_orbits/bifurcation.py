@@ -121,11 +121,11 @@ def test_function(kind: str, fixed_period: bool, monodromy, jac_T, j):
 
 class DefiningSystem(eqx.Module):
     """The defining system's static parts: `residual(y, (nu, c, t0, T))` with y = (x, μ)
-    (fixed period) or (T, x, μ) (free period, phase condition x_j = c). A Module of static
-    fields: equal systems (the same scene, kind and parameter functions) share their
-    compiled programs."""
+    (fixed period) or (T, x, μ) (free period, phase condition x_j = c). Static but for the
+    tolerances: equal systems (the same scene, kind and parameter functions) share their
+    compiled programs, whatever their tolerances."""
 
-    pmap: PeriodMap = eqx.field(static=True)
+    pmap: PeriodMap  # (its tolerances are arrays, inputs of the compiled programs)
     kind: str = eqx.field(static=True)
     fixed_period: bool = eqx.field(static=True)
     args_of: Any = eqx.field(static=True)

@@ -29,7 +29,7 @@ from .period_map import (
 
 
 class OrbitFamily(eqx.Module):
-    pmap: PeriodMap = eqx.field(static=True)
+    pmap: PeriodMap  # (its tolerances are arrays, inputs of the compiled programs)
     args_of: Callable = eqx.field(static=True)
     period_of: Callable | None = eqx.field(static=True)
     fixed_period: bool = eqx.field(static=True)

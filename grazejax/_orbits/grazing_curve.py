@@ -121,7 +121,7 @@ class GrazingCurve(eqx.Module):
 
 
 class _GrazingSystem(eqx.Module):
-    pmap: PeriodMap = eqx.field(static=True)  # the flow without the grazed surface
+    pmap: PeriodMap  # the flow without the grazed surface (tolerances: arrays)
     phi: Callable = eqx.field(static=True)
     args_of: Callable = eqx.field(static=True)
     period_of: Callable | None = eqx.field(static=True)

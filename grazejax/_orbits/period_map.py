@@ -166,8 +166,10 @@ class PeriodMap(eqx.Module):
     scene: Scene = eqx.field(static=True)
     end_impacts: int = eqx.field(static=True)  # 0: time-T map; k: ends just after impact k
     solver: Any = eqx.field(static=True)
-    rtol: float = eqx.field(static=True)
-    atol: float = eqx.field(static=True)
+    # The tolerances are inputs of the compiled kernels (arrays), not part of their key: a
+    # new rtol, or the atol scaled to a new orbit's size, reuses the programs.
+    rtol: Any = eqx.field(converter=lambda v: jnp.asarray(v, float))
+    atol: Any = eqx.field(converter=lambda v: jnp.asarray(v, float))
     max_impacts: int = eqx.field(static=True)
     max_solver_steps: int = eqx.field(static=True)
     adjoint: Any = eqx.field(static=True, default=None)  # simulate's; Newton's runs only
