@@ -66,6 +66,41 @@ def _release_compiled_programs():
     release_compiled_programs()
 
 
+# Each job reports how many programs XLA compiled and how long that took (this process and
+# its xdist workers; not the child processes the tests start), and how many programs the
+# persistent cache served instead: compiling is most of the suite's time.
+_compiles = {"programs": 0, "seconds": 0.0, "cache hits": 0}
+
+
+def _on_duration(event, duration, **_):
+    if event == "/jax/core/compile/backend_compile_duration":
+        _compiles["programs"] += 1
+        _compiles["seconds"] += duration
+
+
+def _on_event(event, **_):
+    if event == "/jax/compilation_cache/cache_hits":
+        _compiles["cache hits"] += 1
+
+
+jax.monitoring.register_event_duration_secs_listener(_on_duration)
+jax.monitoring.register_event_listener(_on_event)
+
+
+def pytest_testnodedown(node, error):
+    """(xdist controller) Add a worker's compile counts to this process's."""
+    for key, value in json.loads(node.workeroutput.get("compiles", "{}")).items():
+        _compiles[key] += value
+
+
+def pytest_terminal_summary(terminalreporter):
+    if hasattr(terminalreporter.config, "workerinput"):
+        return
+    terminalreporter.write_line(
+        f"[{_job(terminalreporter.config)} job] XLA compiled {_compiles['programs']} programs "
+        f"in {_compiles['seconds']:.0f} s; the persistent cache served {_compiles['cache hits']}")
+
+
 def pytest_collection_modifyitems(config, items):
     job = _job(config)
     if job == "default":
@@ -119,6 +154,8 @@ def pytest_runtest_logreport(report):
 
 def pytest_sessionfinish(session):
     config = session.config
+    if hasattr(config, "workerinput"):  # (xdist worker: hand the compile counts over)
+        config.workeroutput["compiles"] = json.dumps(_compiles)
     if not config.getoption("--record-module-seconds") or hasattr(config, "workerinput"):
         return  # (under xdist the controller records: it receives every worker's reports)
     job = _job(config)
