@@ -58,3 +58,15 @@ def loop_kinds(adjoint) -> LoopKinds:
         "(jax.grad) or diffrax.DirectAdjoint() (both). Backsolve and implicit adjoints "
         "would need the adjoint equation solved backward through every impact."
     )
+
+
+def require_forward_mode(adjoint, caller: str, what: str) -> None:
+    """Raise a `ValueError` naming the fix if `adjoint` cannot run forward mode, which
+    Newton's method needs (`caller` linearises `what` with `jax.jacfwd`)."""
+    if not loop_kinds(adjoint).forward:
+        raise ValueError(
+            f"{caller}: Newton's method linearises {what} in forward mode, which "
+            f"adjoint={type(adjoint).__name__}() does not support; pass "
+            "adjoint=diffrax.DirectAdjoint() to differentiate the result with jax.grad, or "
+            "leave adjoint out for jax.jacfwd"
+        )

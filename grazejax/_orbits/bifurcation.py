@@ -36,10 +36,11 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, Complex, Float, Int
 
-from .._adjoint import loop_kinds
+from .._adjoint import require_forward_mode
 from .._scene import Scene
 from .._tangents import without_derivative
 from .._validate import is_concrete
+from .forced_period import PERIOD_OF_FIX, require_period_fixed_in
 from .period_map import (
     ATOL_PER_RTOL,
     PeriodMap,
@@ -180,13 +181,12 @@ def locate_special(
     """A period-doubling, fold or Neimark–Sacker point solved by its defining system at ν
     (`grazejax.locate_bifurcation` of those kinds: its arguments)."""
     kind = getattr(point, "kind", None) if kind is None else kind
-    if not loop_kinds(adjoint).forward:
-        raise ValueError(
-            "locate_bifurcation: Newton's method linearises in forward mode, which "
-            "adjoint=diffrax.RecursiveCheckpointAdjoint() does not support; pass "
-            "adjoint=diffrax.DirectAdjoint() to differentiate with jax.grad"
-        )
+    require_forward_mode(adjoint, "locate_bifurcation", "the defining system")
     mu_guess, t0, T_guess = float(point.mu), float(point.t0), float(point.period)
+    if fixed_period and period_of is None:
+        require_period_fixed_in(
+            scene, lambda p: args_of(mu_guess, p), nu, t0, point.x0, T_guess,
+            caller="locate_bifurcation", parameter="ν", fix=PERIOD_OF_FIX)
     system, x_guess, scale = defining_system(
         scene, point, kind, bool(fixed_period), args_of, period_of, fix, mu_guess, nu,
         dict(solver=solver, rtol=float(rtol), atol=atol, max_impacts=int(max_impacts),

@@ -57,6 +57,7 @@ from .family import (
     record_point,
     x_of,
 )
+from .forced_period import require_period_fixed_in
 from .period_map import (
     PeriodMap,
     newton_for,
@@ -176,6 +177,12 @@ def continue_orbit(
     if mu_start == mu_stop:
         raise ValueError("mu_start == mu_stop: nothing to continue")
     fixed = bool(orbit.fixed_period)
+    if fixed and period_of is None:
+        require_period_fixed_in(
+            scene, args_of, mu_start, orbit.t0, orbit.x0, orbit.period,
+            caller="continue_orbit", parameter="μ",
+            fix="Pass period_of=lambda mu: <the forcing's period> (e.g. 2π/μ for a forcing "
+                "cos(μt)).")
     kw, settings, scale = continuation_settings(orbit, rtol, atol, solver, newton_tol,
                                                  max_newton_steps)
     atol = kw["atol"]

@@ -35,6 +35,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._adjoint import require_forward_mode
 from .._deprecated import NEWTON_STEPS, renamed_keyword
 from .._geometry import gap_rates
 from .._scene import Scene
@@ -54,6 +55,7 @@ from .arclength import (
 from .bifurcation import BifurcationPoint, assessed_point, newton
 from .branch import GrazingPoint
 from .contacts import orbit_contacts
+from .forced_period import PERIOD_OF_FIX, require_period_fixed_in
 from .period_map import PeriodMap, SolverSettings, newton_for, orbit_kernel, sampled_states
 from .periodic import Orbit, OrbitStatus
 
@@ -417,6 +419,8 @@ def locate_grazing(
     """
     if not isinstance(point, GrazingPoint | Orbit):
         raise TypeError("point must be a grazejax.GrazingPoint or a grazejax.Orbit")
+    require_forward_mode(adjoint, "locate_grazing", "the grazing system")
+    require_forward_mode(adjoint, "locate_grazing", "the grazing system")
     if mu is None:
         if not isinstance(point, GrazingPoint):
             raise ValueError("locate_grazing from an Orbit needs mu, the guess of μ")
@@ -432,6 +436,10 @@ def locate_grazing(
         guess_args = args_of(float(mu), nu_guess) if isinstance(point, Orbit) else None
         surface, t_c, x_c, orbit = _contact_of(scene, point, guess_args, surface, kw)
     fixed = bool(orbit.fixed_period)
+    if fixed and period_of is None:
+        require_period_fixed_in(
+            scene, lambda p: args_of(float(mu), p), nu_guess, t_c, x_c,
+            orbit.period, caller="locate_grazing", parameter="ν", fix=PERIOD_OF_FIX)
     system = _system_for(scene, surface, args_of, period_of, fixed, newton_tol, scale,
                          max_newton_steps, dict(kw, adjoint=adjoint))
     head = t_c if fixed else float(orbit.period)

@@ -49,7 +49,7 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, Bool, Complex, Float, Int
 
-from .._adjoint import loop_kinds
+from .._adjoint import loop_kinds, require_forward_mode
 from .._deprecated import NEWTON_STEPS, renamed_keyword
 from .._geometry import FLOOR_ULPS, on_surface
 from .._scene import Scene
@@ -782,12 +782,7 @@ def _check_arguments(scene, x_guess, period, fix, max_newton_steps, num_impacts,
     if is_concrete(x_guess) and not np.all(np.isfinite(np.asarray(x_guess))):
         raise ValueError(f"x0 contains NaN or inf: {np.asarray(x_guess)}")
 
-    if not loop_kinds(adjoint).forward:
-        raise ValueError(
-            "find_periodic_orbit: Newton's method linearises the period map in forward mode, "
-            "which adjoint=diffrax.RecursiveCheckpointAdjoint() does not support; pass "
-            "adjoint=diffrax.DirectAdjoint() to differentiate the orbit with jax.grad"
-        )
+    require_forward_mode(adjoint, "find_periodic_orbit", "the period map")
 
 
 def _impact_start(pmap, x_guess, t0, period, args, start_at_impact, num_impacts):

@@ -2,6 +2,7 @@
 
 import math
 
+import diffrax
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -9,6 +10,7 @@ import pytest
 
 import grazejax as gj
 from grazejax import examples as ex
+from grazejax._orbits.forced_period import require_period_fixed_in
 
 from .test_periodic import OSC, TOL
 
@@ -207,6 +209,14 @@ def test_grazing_is_a_kind_of_bifurcation_point_and_curve(forced_curve, free_orb
 
     located = gj.locate_bifurcation(OSC, point, args_of, omega, period_of=period_of, **TOL)
     assert located.kind == "grazing" and located.message == "SUCCESS"
+    # Without period_of the period would stay the guess's while ν = ω moves: the solve
+    # would answer another problem (dσ/dω = 3.34 where the closed form gives 11.3), so it
+    # is refused with the fix; so is an adjoint Newton's method cannot run.
+    with pytest.raises(ValueError, match=r"period_of=lambda mu, nu"):
+        gj.locate_bifurcation(OSC, point, args_of, omega, **TOL)
+    with pytest.raises(ValueError, match=r"locate_grazing.*DirectAdjoint"):
+        gj.locate_bifurcation(OSC, point, args_of, omega, period_of=period_of,
+                              adjoint=diffrax.RecursiveCheckpointAdjoint(), **TOL)
     assert abs(float(located.mu) - _amplitude(omega)) < 1e-9
     direct = gj.locate_grazing(OSC, point, args_of, omega, period_of=period_of,
                                newton_tol=1e-9, **TOL)
@@ -219,3 +229,15 @@ def test_grazing_is_a_kind_of_bifurcation_point_and_curve(forced_curve, free_orb
     np.testing.assert_array_equal(curve.nu, forced_curve.mu)
     np.testing.assert_array_equal(curve.mu, forced_curve.nu)
     np.testing.assert_array_equal(curve.x0, forced_curve.x0)
+
+
+def test_a_period_held_fixed_is_checked_against_the_moving_parameter(free_orbit):
+    """The forced period held fixed is refused where the parameter moves it (ω), with the fix,
+    and accepted where it does not (σ moves the stop, A the forcing's amplitude)."""
+    with pytest.raises(ValueError, match=r"continue_orbit.*period_of=lambda mu"):
+        gj.continue_orbit(OSC, free_orbit, lambda w: _osc(w, 3.0), 0.8, 0.7, progress=False)
+    for args_at in (lambda s: _osc(0.8, s),
+                    lambda a: ex.impact_oscillator_args(zeta=ZETA, A=a, omega=0.8, sigma=3.0,
+                                                        r=0.8)):
+        require_period_fixed_in(OSC, args_at, 1.5, free_orbit.t0, free_orbit.x0,
+                                free_orbit.period, caller="test", parameter="p", fix="")
