@@ -23,11 +23,14 @@ INSTALL = 'pip install -e ".[test]"'
 
 
 def _run(*command, cwd=ROOT):
+    """`python -m <command>` in this environment."""
+    return _execute(sys.executable, "-m", *command, cwd=cwd)
+
+
+def _execute(*command, cwd=ROOT):
     env = dict(os.environ, NO_MKDOCS_2_WARNING="1")  # mkdocs-material's banner, not ours
-    return subprocess.run(
-        [sys.executable, "-m", *command], cwd=cwd, env=env, capture_output=True, text=True,
-        timeout=600,
-    )
+    return subprocess.run(list(command), cwd=cwd, env=env, capture_output=True, text=True,
+                          timeout=600)
 
 
 @pytest.mark.skipif(importlib.util.find_spec("ruff") is None, reason=f"ruff: {INSTALL}")
@@ -59,9 +62,10 @@ def test_docs_build_in_strict_mode(tmp_path):
     assert 'href="tour/"' in home and 'src="img/ex1dof-bifurcation.png"' in home
 
 
-def test_wheel_ships_the_license_and_the_typed_marker(tmp_path):
+def test_wheel_ships_the_license_and_the_typed_marker_and_runs(tmp_path):
     """The Apache-2.0 text (pyproject's `license-files`) and `py.typed` (PEP 561: type
-    checkers read grazejax's annotations) are in the repository and in the built wheel."""
+    checkers read grazejax's annotations) are in the repository and in the built wheel,
+    and the wheel installed elsewhere runs the main job."""
     import zipfile
 
     license_text = (ROOT / "LICENSE").read_text(encoding="utf-8")
@@ -82,6 +86,30 @@ def test_wheel_ships_the_license_and_the_typed_marker(tmp_path):
         (shipped,) = [name for name in names if name.endswith(".dist-info/licenses/LICENSE")]
         assert archive.read(shipped).decode() == license_text
     assert "License-Expression: Apache-2.0" in metadata
+    _wheel_runs_the_main_job(wheel, tmp_path)
+
+
+def _wheel_runs_the_main_job(wheel, tmp_path):
+    """The wheel, installed into a fresh environment (its dependencies from this one's
+    site-packages, so no package index is needed), imports from there, not from this
+    checkout, and runs `grazejax reproduce` (one figure) from another folder."""
+    venv = tmp_path / "venv"
+    result = _run("venv", "--system-site-packages", str(venv))
+    assert result.returncode == 0, result.stdout + result.stderr
+    bin_dir = venv / ("Scripts" if os.name == "nt" else "bin")
+    result = _execute(str(bin_dir / "python"), "-m", "pip", "install", "--no-deps", "--no-index",
+                  "--quiet", str(wheel))
+    assert result.returncode == 0, result.stdout + result.stderr
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    result = _execute(str(bin_dir / "python"), "-c", "import grazejax; print(grazejax.__file__)",
+                  cwd=elsewhere)
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert Path(result.stdout.strip()).resolve().is_relative_to(venv.resolve()), result.stdout
+    result = _execute(str(bin_dir / "grazejax"), "reproduce", "--only", "orbex2-region", "--out",
+                  "out", "--quiet", cwd=elsewhere)
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert any((elsewhere / "out").rglob("*.png")), sorted((elsewhere / "out").rglob("*"))
 
 
 # mkdocstrings' cross-reference markup, `[name][]` or `[title][grazejax.name]` (the two halves
