@@ -53,13 +53,13 @@ def _calls(name: str):
     starts = jnp.stack([jnp.full(64, 0.5), jnp.linspace(0.8, 1.4, 64)], axis=1)
     values = {"first": (x0, 0.2, 1e-8), "new numbers": (x0 + 0.01, 0.21, 1e-8),
               "new rtol": (x0 + 0.01, 0.21, 1e-9)}
-    checkpoint = diffrax.RecursiveCheckpointAdjoint()
+    checkpoint, forward = diffrax.RecursiveCheckpointAdjoint(), diffrax.ForwardMode()
 
     def final(x, mu, rtol, **kw):
         return gj.simulate(scene, x, 0.0, 20.0, ex.ex1dof_args(mu), max_impacts=20, rtol=rtol,
                            **kw).x_final
 
-    def flow(x, mu, rtol, adjoint=diffrax.ForwardMode()):
+    def flow(x, mu, rtol, adjoint=forward):
         return diffrax.diffeqsolve(
             diffrax.ODETerm(scene.vector_field), diffrax.Tsit5(), 0.0, 20.0, None, x,
             ex.ex1dof_args(mu), stepsize_controller=diffrax.PIDController(rtol=rtol, atol=1e-10),
