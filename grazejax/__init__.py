@@ -13,6 +13,18 @@ from ._compiler import compiler_options as compiler_options
 from ._conditions import ConditionReport as ConditionReport
 from ._conditions import ConditionResult as ConditionResult
 from ._conditions import check_conditions as check_conditions
+from ._dynamics.basins import Attractor as Attractor
+from ._dynamics.basins import Basins as Basins
+from ._dynamics.basins import BasinStatus as BasinStatus
+from ._dynamics.basins import basins as basins
+from ._dynamics.lyapunov import LyapunovSpectrum as LyapunovSpectrum
+from ._dynamics.lyapunov import LyapunovStatus as LyapunovStatus
+from ._dynamics.lyapunov import lyapunov_spectrum as lyapunov_spectrum
+from ._dynamics.lyapunov import maximal_lyapunov_exponent as maximal_lyapunov_exponent
+from ._dynamics.orbit_diagram import OrbitDiagram as OrbitDiagram
+from ._dynamics.orbit_diagram import orbit_diagram as orbit_diagram
+from ._dynamics.sections import Section as Section
+from ._dynamics.sections import poincare as poincare
 from ._linearize import A2Diagnostic as A2Diagnostic
 from ._linearize import ClosedForm as ClosedForm
 from ._linearize import DerivativeStatus as DerivativeStatus
@@ -85,6 +97,8 @@ from ._status import ImpactKind as ImpactKind
 from ._status import Status as Status
 from ._sweep import sweep as sweep
 from ._vern9 import Vern9 as Vern9
+from .plot import plot_basins as plot_basins
 from .plot import plot_bifurcation_diagram as plot_bifurcation_diagram
+from .plot import plot_orbit_diagram as plot_orbit_diagram
 
 __version__ = "0.1.0"

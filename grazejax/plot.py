@@ -15,6 +15,11 @@ helpers work for any 2-D scene (state of shape `(2,)`):
 - `phase_portrait` does both, for one run or a batch of runs (leading batch axis).
 - `grazejax.plot_bifurcation_diagram` draws branches of periodic orbits from
   `grazejax.continue_orbit` (amplitude against μ, stability, impacts per period).
+- `grazejax.plot_orbit_diagram` draws a brute-force orbit diagram from
+  `grazejax.orbit_diagram` (section points against μ, by period), optionally over a panel
+  of maximal Lyapunov exponents.
+- `grazejax.plot_basins` draws the basins of attraction of a 2-D grid of starts from
+  `grazejax.basins` (one colour per attractor, grey where a start is in no basin).
 
 Colours follow the paper's figures: Γ in red, Γ̃ in green.
 
@@ -505,6 +510,153 @@ def plot_bifurcation_diagram(
         ax.set_title(title, fontsize=10)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc="best")
+    if path is not None:
+        fig.savefig(path, dpi=dpi, bbox_inches="tight")
+    return fig
+
+
+def plot_orbit_diagram(
+    diagram,
+    coordinate: int = 0,
+    ax=None,
+    lyapunov=None,
+    *,
+    path=None,
+    title: str | None = None,
+    mu_label: str = "μ",
+    dpi: int = 150,
+):
+    r"""Draw a brute-force orbit diagram (`grazejax.orbit_diagram`): section points vs μ.
+
+    **Arguments:**
+
+    - `diagram`: a `grazejax.OrbitDiagram`.
+    - `coordinate`: which state coordinate of the points to draw.
+    - `ax`: a Matplotlib `Axes` (without `lyapunov`), or a pair of them (with it): default
+      a new figure.
+    - `lyapunov`: optional maximal Lyapunov exponents, one per μ (e.g. from
+      `grazejax.lyapunov_spectrum`, computed by the caller), drawn in a lower panel with
+      the zero line; NaN entries are left out.
+    - `path`: if given, the figure is saved there as a PNG.
+    - `title`, `mu_label`, `dpi`: labels and resolution.
+
+    Points are coloured by the detected period of their μ (1, 2, 4, ...; grey where none
+    was found); μ whose runs failed (status not `SUCCESS`) are marked by red ticks on the
+    μ axis, so that a gap in the diagram is never mistaken for an empty attractor.
+
+    **Returns:** the Matplotlib `Figure`.
+    """
+    import matplotlib
+
+    if ax is None and path is not None:
+        matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    if ax is None:
+        if lyapunov is None:
+            fig, top = plt.subplots(figsize=(7.5, 4.8))
+        else:
+            fig, (top, bottom) = plt.subplots(2, 1, sharex=True, figsize=(7.5, 6.4),
+                                              gridspec_kw={"height_ratios": (3, 1)})
+    else:
+        top, bottom = (ax, None) if lyapunov is None else tuple(ax)
+        fig = top.figure
+    _draw_orbit_points(top, diagram, coordinate)
+    top.set_ylabel(f"x{coordinate + 1} on the section")
+    if title:
+        top.set_title(title, fontsize=10)
+    if lyapunov is not None:
+        lyapunov = np.asarray(lyapunov, dtype=float)
+        mu = np.asarray(diagram.mu)
+        if lyapunov.shape != mu.shape:
+            raise ValueError(f"lyapunov must have one value per μ {mu.shape}, got {lyapunov.shape}")
+        bottom.plot(mu, lyapunov, ".-", color="k", lw=0.8, ms=3)
+        bottom.axhline(0.0, color="#d62728", lw=0.8)
+        bottom.set_ylabel("λ_max")
+        bottom.grid(alpha=0.3)
+        bottom.set_xlabel(mu_label)
+    else:
+        top.set_xlabel(mu_label)
+    if path is not None:
+        fig.savefig(path, dpi=dpi, bbox_inches="tight")
+    return fig
+
+
+def _draw_orbit_points(ax, diagram, coordinate: int) -> None:
+    """The points of each μ, coloured by period, and red ticks at failed μ."""
+    mu = np.asarray(diagram.mu)
+    values = np.asarray(diagram.points)[..., coordinate]
+    period = np.asarray(diagram.period)
+    import matplotlib.pyplot as plt
+
+    cmap = plt.get_cmap("tab10")
+    for i, p in enumerate(sorted(set(period.tolist()))):
+        lanes = period == p
+        x = np.repeat(mu[lanes], values.shape[1])
+        y = values[lanes].ravel()
+        ax.plot(x, y, ".", ms=2, color="0.5" if p == 0 else cmap(i % 10),
+                label="no period found" if p == 0 else f"period {p}")
+    failed = np.asarray(diagram.status) != 0
+    if failed.any():
+        ax.plot(mu[failed], np.zeros(failed.sum()), "|", color="#d62728", ms=12,
+                transform=ax.get_xaxis_transform(), label="run failed (see status)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8, loc="best", markerscale=4)
+
+
+
+def plot_basins(basins, grid_shape, extent, ax=None, *, path=None, title: str | None = None,
+                labels: tuple[str, str] = ("x1(0)", "x2(0)"), dpi: int = 150):
+    r"""Draw the basins of attraction of a 2-D grid of starts (`grazejax.basins`).
+
+    **Arguments:**
+
+    - `basins`: a `grazejax.Basins` whose starts were a grid, ordered as
+      `np.stack([X.ravel(), Y.ravel()], 1)` with `X, Y = np.meshgrid(xs, ys)`.
+    - `grid_shape`: `(len(ys), len(xs))`, the shape of `X`.
+    - `extent`: `(x_min, x_max, y_min, y_max)`, the grid's first and last values.
+    - `ax`: a Matplotlib `Axes` (default: a new figure).
+    - `path`: if given, the figure is saved there as a PNG.
+    - `title`, `labels` (axis labels), `dpi`.
+
+    Each basin gets its colour (the legend gives its period and basin stability S ± its
+    standard error); starts in no basin (label −1: undecided, diverged or failed) are
+    grey, so that a hole in a basin is never mistaken for another attractor's.
+
+    **Returns:** the Matplotlib `Figure`.
+    """
+    import matplotlib
+
+    if ax is None and path is not None:
+        matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+    from matplotlib.colors import ListedColormap
+    from matplotlib.patches import Patch
+
+    grid = np.asarray(basins.labels).reshape(grid_shape)
+    if ax is None:
+        fig, ax = plt.subplots(figsize=(6.0, 5.0))
+    else:
+        fig = ax.figure
+    count = len(basins.attractors)
+    colours = ["0.6", *[plt.get_cmap("tab10")(k % 10) for k in range(count)]]
+    x_min, x_max, y_min, y_max = extent
+    # Pixel centres on the grid points: pad the extent by half a cell on each side.
+    dx = (x_max - x_min) / max(grid.shape[1] - 1, 1) / 2
+    dy = (y_max - y_min) / max(grid.shape[0] - 1, 1) / 2
+    ax.imshow(grid + 1, origin="lower", cmap=ListedColormap(colours), vmin=-0.5,
+              vmax=count + 0.5, extent=(x_min - dx, x_max + dx, y_min - dy, y_max + dy),
+              aspect="auto", interpolation="nearest")
+    handles = [Patch(color=colours[k + 1],
+                     label=f"{k}: period {a.period}, S = {basins.fractions[k]:.3f} ± "
+                           f"{basins.standard_errors[k]:.3f}")
+               for k, a in enumerate(basins.attractors)]
+    handles.append(Patch(color=colours[0], label=f"−1: no attractor ({basins.num_undecided})"))
+    ax.legend(handles=handles, fontsize=8, loc="best")
+    ax.set_xlabel(labels[0])
+    ax.set_ylabel(labels[1])
+    if title:
+        ax.set_title(title, fontsize=10)
     if path is not None:
         fig.savefig(path, dpi=dpi, bbox_inches="tight")
     return fig

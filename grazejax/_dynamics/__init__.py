@@ -1,0 +1,1 @@
+"""Dynamics at scale through impacts: sections, orbit diagrams, Lyapunov spectra, basins."""
