@@ -81,13 +81,13 @@ def simulate(
     r"""Simulate x' = f(t, x) with jumps x → J_i(x) on the surface pieces Γ_i, from t0 to t1.
 
     One call is one XLA program: it works under `jax.jit`, `jax.vmap` (batched `x0` and
-    `args` leaves) and `jax.jacfwd` (with respect to `x0` and `args`). Called outside `jit` and `vmap` (or under
-    an eager `jax.jvp`, `jax.jacfwd`, `jax.grad`), it checks its inputs and runs a program
-    compiled once per scene object and options (with
+    `args` leaves) and `jax.jacfwd` (with respect to `x0` and `args`). Called outside `jit`
+    and `vmap` (also under an eager `jax.jvp`, `jax.jacfwd` or `jax.grad`), it checks its
+    inputs and runs a program compiled once per scene object and options (with
     `grazejax.compiler_options(batched=False)`) and kept: new `x0`, `t0`, `t1`, numbers in
-    `args`, `rtol`, `atol`, `zeno_rtol` and `dt0` do not compile it again, and the second
-    eager `jax.jacfwd` or `jax.grad` of a call reuses the first one's program. What counts as an impact, a grazing
-    contact, Zeno and sticking is written down exactly in docs/semantics.md.
+    `args`, `rtol`, `atol`, `zeno_rtol` and `dt0` do not compile it again, and a second eager
+    `jax.jacfwd` or `jax.grad` of a call reuses the first one's program. What counts as an
+    impact, a grazing contact, Zeno and sticking is written down exactly in docs/semantics.md.
 
     **Arguments:**
 
