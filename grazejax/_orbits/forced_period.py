@@ -61,6 +61,6 @@ def require_period_fixed_in(scene, args_at, value, t0, x, period, *, caller: str
         raise ValueError(
             f"{caller}: the period is held at T = {float(period):.12g}, but the scene is "
             f"T-periodic only at this value of {parameter}: d/d{parameter} of "
-            f"f(t + T) − f(t) (or of a gap Φ) is {drift:.3g} (against {change:.3g} for f and Φ), so the solve would "
-            f"answer another problem as {parameter} moves. {fix}"
+            f"f(t + T) − f(t) (or of a gap Φ) is {drift:.3g} (against {change:.3g} for f and "
+            f"Φ), so the solve would answer another problem as {parameter} moves. {fix}"
         )
