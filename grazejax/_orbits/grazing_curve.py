@@ -420,7 +420,6 @@ def locate_grazing(
     if not isinstance(point, GrazingPoint | Orbit):
         raise TypeError("point must be a grazejax.GrazingPoint or a grazejax.Orbit")
     require_forward_mode(adjoint, "locate_grazing", "the grazing system")
-    require_forward_mode(adjoint, "locate_grazing", "the grazing system")
     if mu is None:
         if not isinstance(point, GrazingPoint):
             raise ValueError("locate_grazing from an Orbit needs mu, the guess of μ")
