@@ -175,6 +175,15 @@ def simulate(
     return sol
 
 
+# simulate's keyword options and their defaults, read from its signature once: the entry
+# points built on it (sweep, the sections, the dynamics functions) check and fill theirs here.
+SIMULATE_OPTIONS = {
+    name: p.default
+    for name, p in inspect.signature(simulate).parameters.items()
+    if p.kind is inspect.Parameter.KEYWORD_ONLY
+}
+
+
 def _run(scene, x0, t0, t1, args, *, saveat, direction, adjoint, max_steps, **options):
     """The run itself: one XLA program (prepare, loop, finish), no Python-side checks."""
     checked, program = prepare(
@@ -271,11 +280,10 @@ def numeric_options(options) -> dict:
     """The numeric options of `options` (`simulate`'s defaults where absent) as arrays:
     `{name: array}` for rtol, atol, zeno_rtol, and dt0 when given to an adaptive controller.
     A value that is already an array stays as it is."""
-    defaults = {name: p.default for name, p in inspect.signature(simulate).parameters.items()}
     constant_step = isinstance(options.get("stepsize_controller"), diffrax.ConstantStepSize)
     numbers = {}
     for name in _NUMERIC_OPTIONS:
-        value = options.get(name, defaults[name])
+        value = options.get(name, SIMULATE_OPTIONS[name])
         if value is None or (name == "dt0" and constant_step):
             continue
         if isinstance(value, bool) or not eqx.is_array_like(value):

@@ -30,7 +30,6 @@ step counts agree exactly in the tests.
 """
 
 import contextlib
-import inspect
 import warnings
 from collections.abc import Sequence
 from typing import Any, Literal, NamedTuple
@@ -43,18 +42,11 @@ from ._adjoint import loop_kinds
 from ._compiler import compiler_options
 from ._loop.pool import run_pool
 from ._scene import Scene
-from ._simulate import _throw_if_failed, numeric_options, prepare, simulate
+from ._simulate import SIMULATE_OPTIONS, _throw_if_failed, numeric_options, prepare, simulate
 from ._solution import FailedLanesWarning, Solution, failed_lanes_message
 from ._validate import saveat_times
 
 _BALANCES = ("refill", "none")
-# simulate's keyword options and their defaults (the pool builds the loop with `prepare`,
-# as simulate does).
-_SIMULATE_OPTIONS = {
-    name: p.default
-    for name, p in inspect.signature(simulate).parameters.items()
-    if p.kind is inspect.Parameter.KEYWORD_ONLY
-}
 _DEFAULT_POOL = 1024
 
 
@@ -158,7 +150,7 @@ def sweep(
     sols = gj.sweep(examples.ex1dof(), x0s, 0.0, 200.0, examples.ex1dof_args(-0.2))
     ```
     """
-    unknown = set(simulate_kwargs) - set(_SIMULATE_OPTIONS)
+    unknown = set(simulate_kwargs) - set(SIMULATE_OPTIONS)
     if unknown:
         raise TypeError(f"sweep got unknown simulate options: {sorted(unknown)}")
     if "direction" in simulate_kwargs:
@@ -396,7 +388,8 @@ def _build_chunk(scene, in_axes_args, x0_batched, devices, options, direction, w
 
     else:
         # Every option of simulate but those the chunk sets itself.
-        kw = {**_SIMULATE_OPTIONS, **options}
+        # (the pool builds the loop with `prepare`, as simulate does, with its defaults)
+        kw = {**SIMULATE_OPTIONS, **options}
         for own in ("saveat", "direction", "throw"):
             kw.pop(own)
 

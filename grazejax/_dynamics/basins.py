@@ -22,7 +22,6 @@ chunks: the labels do not depend on `chunk_size`.
 
 from __future__ import annotations
 
-import inspect
 from collections.abc import Callable
 
 import equinox as eqx
@@ -32,13 +31,12 @@ import numpy as np
 from jaxtyping import Float, Int
 
 from .._scene import Scene
-from .._simulate import simulate
+from .._simulate import SIMULATE_OPTIONS
 from .._status import Status, StatusCode
 from .orbit_diagram import RECURRENCE_FACTOR
 from .sections import Section, run_batched, run_options, section_kind
 
 _DEFAULT_CHUNK = 65536
-_SIMULATE_DEFAULTS = inspect.signature(simulate).parameters
 
 
 class BasinStatus(StatusCode):
@@ -470,8 +468,8 @@ def basins(
     kind = section_kind(scene, period, surface, section, direction)
     options = run_options(simulate_options, num_points)
     config = dict(features=features, grid=grid, bound=bound, factor=float(recurrence_factor),
-                  rtol=float(options.get("rtol", _SIMULATE_DEFAULTS["rtol"].default)),
-                  atol=float(options.get("atol", _SIMULATE_DEFAULTS["atol"].default)))
+                  rtol=float(options.get("rtol", SIMULATE_OPTIONS["rtol"])),
+                  atol=float(options.get("atol", SIMULATE_OPTIONS["atol"])))
     chunk = _chunk_length(len(starts), chunk_size)
     def run_chunk(chunk_starts):
         return _run_chunk(scene, kind, int(num_points), options, chunk_starts, chunk, t0,

@@ -25,7 +25,7 @@ from jaxtyping import Array, Bool, Float, Int
 
 from .._compiler import single_run_jit
 from .._scene import Scene
-from .._simulate import _traced_numbers, numeric_options, simulate
+from .._simulate import SIMULATE_OPTIONS, _traced_numbers, numeric_options, simulate
 from .._status import ImpactKind, Status, StatusCode
 
 # Default number of renormalisation windows when `renormalize` is not given.
@@ -265,7 +265,7 @@ def _rtol_of(options) -> float:
     """The relative tolerance the runs use (their controller's, if one is given)."""
     controller = options.get("stepsize_controller")
     rtol = getattr(controller, "rtol", None) if controller is not None else None
-    return float(options.get("rtol", 1e-8) if rtol is None else rtol)
+    return float(options.get("rtol", SIMULATE_OPTIONS["rtol"]) if rtol is None else rtol)
 
 
 # --------------------------------------------------------------------------------------

@@ -13,6 +13,7 @@ from jaxtyping import Array, Float, Int
 
 from .._compiler import compiler_options
 from .._scene import Scene
+from .._simulate import SIMULATE_OPTIONS
 from .._status import Status
 from .sections import Section, run_batched, run_options, section_kind, section_lane
 
@@ -185,7 +186,8 @@ def _periods(period, mus) -> np.ndarray:
 
 def _diagram(mus, section: Section, options: dict, factor: float) -> OrbitDiagram:
     """Periods and statuses per μ from the section points."""
-    rtol, atol = float(options.get("rtol", 1e-8)), float(options.get("atol", 1e-10))
+    rtol = float(options.get("rtol", SIMULATE_OPTIONS["rtol"]))
+    atol = float(options.get("atol", SIMULATE_OPTIONS["atol"]))
     points = np.asarray(section.points)
     tolerance = np.stack([recurrence_tolerance(p, rtol, atol, factor) for p in points])
     period = np.array([detect_period(p, tol) for p, tol in zip(points, tolerance, strict=True)])

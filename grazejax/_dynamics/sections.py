@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import abc
 import dataclasses
-import inspect
 from collections.abc import Callable
 
 import equinox as eqx
@@ -36,7 +35,7 @@ from jaxtyping import Array, Bool, Float, Int
 
 from .._compiler import compiler_options
 from .._scene import Scene, Surface, identity_jump
-from .._simulate import numeric_options, simulate
+from .._simulate import SIMULATE_OPTIONS, numeric_options, simulate
 from .._solution import Solution
 from .._status import ImpactKind, Status
 from .._validate import is_concrete, validate_inputs
@@ -252,10 +251,6 @@ def compiled_lanes(scene, kind, num_points: int, options: dict, in_axes_args, ba
 # poincare
 # --------------------------------------------------------------------------------------
 
-_SIMULATE_OPTIONS = {
-    name for name, p in inspect.signature(simulate).parameters.items()
-    if p.kind is inspect.Parameter.KEYWORD_ONLY
-}
 _NOT_OPTIONS = {"saveat": "the section chooses its saves",
                 "direction": "sections run forward in time ('direction' here is the crossing "
                              "direction of `section`)",
@@ -286,7 +281,7 @@ def section_kind(scene: Scene, period, surface, section, direction) -> _Abstract
 def run_options(simulate_options: dict, num_points: int) -> dict:
     """simulate's options for a section run, checked; `max_impacts` defaults to
     2·num_points + 64 (impact maps and user sections run until it)."""
-    unknown = set(simulate_options) - _SIMULATE_OPTIONS
+    unknown = set(simulate_options) - set(SIMULATE_OPTIONS)
     if unknown:
         raise TypeError(f"unknown simulate options: {sorted(unknown)}")
     for name, why in _NOT_OPTIONS.items():

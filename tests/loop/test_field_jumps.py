@@ -206,10 +206,9 @@ def test_which_example_scenes_compile_the_probe():
     """Every example `Scene` has a continuous field (no probe, neither compiled nor run);
     `PiecewiseScene`s choose their field by the mode in the state (probe kept), and so do
     the `sign(·)` scenes, which the probe refuses."""
-    from grazejax._simulate import prepare
-    from grazejax._sweep import _SIMULATE_OPTIONS
+    from grazejax._simulate import SIMULATE_OPTIONS, prepare
 
-    options = {k: v for k, v in _SIMULATE_OPTIONS.items() if k not in ("saveat", "throw")}
+    options = {k: v for k, v in SIMULATE_OPTIONS.items() if k not in ("saveat", "throw")}
 
     def probes(scene, x0, args):
         _, program = prepare(scene, jnp.asarray(x0, float), 0.0, 1.0, args, saveat=None,
