@@ -39,13 +39,15 @@ def is_concrete(*trees) -> bool:
     return not any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves(trees))
 
 
+def concrete_value(leaf):
+    """`leaf`'s value where Python can read one, else None: a tracer of `jit` or `vmap` has
+    none; a tracer of an eager `jax.jvp`, `jax.jacfwd` or `jax.grad` has its primal's."""
+    return leaf.to_concrete_value() if isinstance(leaf, jax.core.Tracer) else leaf
+
+
 def has_values(*trees) -> bool:
-    """Every leaf has a value that Python can read: no tracer of `jit` or `vmap`. A tracer of
-    an eager `jax.jvp`, `jax.jacfwd` or `jax.grad` qualifies (its primal is a value)."""
-    for leaf in jax.tree.leaves(trees):
-        if isinstance(leaf, jax.core.Tracer) and leaf.to_concrete_value() is None:
-            return False
-    return True
+    """Every leaf has a value that Python can read (`concrete_value`)."""
+    return all(concrete_value(leaf) is not None for leaf in jax.tree.leaves(trees))
 
 
 def validate_inputs(

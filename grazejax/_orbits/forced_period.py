@@ -7,6 +7,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._validate import concrete_value
+
 # How many times of one period the check samples, and the relative size of the change of
 # f(t + T) − f(t) against the change of f itself (both per unit change of the parameter)
 # above which the field is not T-periodic for every value: round-off in a field that is
@@ -19,16 +21,6 @@ PERIOD_OF_FIX = ("Pass period_of=lambda mu, nu: <the forcing's period> (e.g. 2π
                  "forcing cos(νt)).")
 
 
-def concrete_or_none(value):
-    """`value`'s number where Python can read one (also through an eager `jax.jvp` or
-    `jax.jacfwd`, whose primal is concrete), else None (inside `jit`/`vmap`)."""
-    if isinstance(value, jax.core.Tracer):
-        value = value.to_concrete_value()
-        if value is None:
-            return None
-    return float(np.asarray(value))
-
-
 def require_period_fixed_in(scene, args_at, value, t0, x, period, *, caller: str,
                             parameter: str, fix: str) -> None:
     """Raise a `ValueError` naming `fix` unless F(t + T, x, args_at(p)) − F(t, x, args_at(p))
@@ -37,9 +29,10 @@ def require_period_fixed_in(scene, args_at, value, t0, x, period, *, caller: str
     [t0, t0 + T) and the state `x`: with the period T held fixed, the solve is right only for
     scenes whose period does not depend on p. A `value` without a number (inside `jit`) is
     not checked."""
-    value = concrete_or_none(value)
+    value = concrete_value(value)
     if value is None:
         return
+    value = float(np.asarray(value))
     with jax.ensure_compile_time_eval():
         x = jnp.asarray(x, float)
         ts = float(t0) + float(period) * jnp.arange(_SAMPLES) / _SAMPLES
