@@ -359,10 +359,11 @@ def _relative_speed(scene: Scene, t, x, surface, args):
     """|dΦ/dt| / (|∂Φ/∂t| + |∇Φ|·|f|) of surface `surface` at (t, x): the sine of the angle
     at which the flow meets it in (t, x) space."""
 
+    f = scene.vector_field(t, x, args)  # (one field evaluation for every surface)
+
     def speed_on(i):
         phi = scene.surfaces[i].phi
         phi_t, grad = jax.jacfwd(phi, argnums=(0, 1))(t, x, args)
-        f = scene.vector_field(t, x, args)
         rate = phi_t + grad @ f
         scale = jnp.abs(phi_t) + jnp.linalg.norm(grad) * jnp.linalg.norm(f)
         return jnp.abs(rate) / scale
