@@ -17,17 +17,19 @@ A part that no end test flags is accepted only where that bound proves it clear 
 trajectory's own tolerance (`part_resolution`); otherwise the step is retaken shorter,
 and the bound tightens like h².
 
-K itself comes from the samples (`curvature_bound`): every pair of consecutive samples gives
-three lower bounds of max|g''| (the change of slope over the part, and the values' distance
-from each end's tangent), and K is the largest plus their spread, at most `SAFETY` times
-the largest (exact for a constant g''). A gap that oscillates
-faster than the samples shows it in these differences (its value, slope and curvature
-cannot all be small at a sample), so K grows with the oscillation and the parts must
-shrink until they resolve it; with parts that resolve it, the differences converge to g''
-itself. The one assumption left is that g'' on a step is within `SAFETY` of what its own
-samples show (as a solver's error estimate is assumed to be within its safety factor of the
-error): a feature of Φ much narrower than a part and absent from all five samples and their
-differences remains invisible, as it would to any method that samples the step.
+K itself comes from the samples (`curvature_bound`): the gap's second derivative at each
+of the five samples (`gaps.curvatures_at`), and three lower bounds of max|g''| from every
+pair of consecutive samples (the change of slope over the part, and the values' distance
+from each end's tangent); K is the largest plus their spread, at most `SAFETY` times the
+largest (exact for a constant g''). The second derivatives carry the bound where a part is
+long against the gap's oscillation: the differences of values and slopes over a part of
+width w never exceed ~2·max|ġ|/w, 2/(ωw) of the curvature of a gap oscillating at ω,
+while g'' read at a sample scales like the curvature itself. The one assumption left is
+that g'' on a step is within `SAFETY` of what its own samples show (as a solver's error
+estimate is assumed to be within its safety factor of the error): a gap whose curvature
+is small at all five samples and whose differences are small too (many oscillations per
+step, each sample near an inflection point) remains unseen, as it would by any method
+that samples the step.
 """
 
 import functools
@@ -40,11 +42,11 @@ from .._roots import safe_divide
 SAFETY = 2.0
 
 
-def curvature_bound(values, slopes, fractions):
+def curvature_bound(values, slopes, fractions, second=()):
     """A bound of max|g''| (in θ) from the lower bounds that consecutive samples give,
-    |d₁ − d₀|/w and 2|p₁ − p₀ − d₀w|/w², 2|p₀ − p₁ + d₁w|/w² for each part of width w: the
-    largest, plus the spread between the largest and the smallest, at most (`SAFETY` − 1)
-    times the largest. Where g'' is constant (a parabola: free fall onto a plane) every
+    |d₁ − d₀|/w and 2|p₁ − p₀ − d₀w|/w², 2|p₀ − p₁ + d₁w|/w² for each part of width w, and
+    |g''| at the samples (`second`, where given): the largest, plus the spread between
+    the largest and the smallest, at most (`SAFETY` − 1) times the largest. Where g'' is constant (a parabola: free fall onto a plane) every
     estimate is the same and the bound is exact, so it retakes no step that the gap itself
     does not call for; where the gap oscillates faster than the samples the estimates
     scatter and the bound is `SAFETY` times the largest."""
@@ -55,6 +57,8 @@ def curvature_bound(values, slopes, fractions):
         estimates.append(jnp.abs(d1 - d0) / w)
         estimates.append(2 * jnp.abs(p1 - p0 - d0 * w) / (w * w))
         estimates.append(2 * jnp.abs(p0 - p1 + d1 * w) / (w * w))
+    # (a second derivative that is not finite says nothing: the differences decide)
+    estimates.extend(jnp.where(jnp.isfinite(c), jnp.abs(c), 0.0) for c in second)
     largest = functools.reduce(jnp.maximum, estimates)
     smallest = functools.reduce(jnp.minimum, estimates)
     return largest + jnp.minimum(largest - smallest, (SAFETY - 1) * largest)

@@ -73,7 +73,7 @@ def sample_gaps(ctx: LoopContext, c: LoopState, sa, sb, y1, interp, stages, *,
         at.update(zip(inner, at_fractions(interp, inner, sa, sb), strict=True))
     else:
         at.update((theta, at_fraction(interp)(theta, sa, sb)) for theta in inner)
-    step = _StepView(c, sa, sb, fraction_time(0.5, sa, sb), y1, at)
+    step = _StepView(c, sa, sb, fraction_time(0.5, sa, sb), y1, at, interp, batched)
     ends, candidates, curvatures = [], [], []
     resolved, any_candidate = jnp.array(True), jnp.array(False)
     shrink = jnp.ones((), ctx.dtype)
@@ -114,6 +114,8 @@ class _StepView(NamedTuple):
     s_mid: RealScalar
     y1: Any
     at: dict  # `{θ: (s, y, dy/ds)}` at every fraction the tests read (`_FRACTIONS`)
+    interp: Any  # the step's dense output (the gap's second derivatives, `curvatures_at`)
+    batched: bool
 
 
 def _sample_one(ctx: LoopContext, step: _StepView, i: int, piece, sign):
@@ -167,7 +169,8 @@ def _sample_one(ctx: LoopContext, step: _StepView, i: int, piece, sign):
     # Every sample in time order, values and slopes in θ, and the curvature bound.
     values = (g_a, checks[0][0], g_mid, checks[1][0], g_b)
     theta_slopes = (step_slopes[0], checks[0][1], step_slopes[1], checks[1][1], step_slopes[2])
-    curvature = curvature_bound(values, theta_slopes, PART_FRACTIONS)
+    second = curvatures_at(gap, step.interp, PART_FRACTIONS, sa, sb, step.batched)
+    curvature = curvature_bound(values, theta_slopes, PART_FRACTIONS, second)
     far = is_far((g_a, g_mid, g_b, *(v for v, _ in checks)),
                  (*step_slopes, *(d for _, d in checks)))
     far = far | is_clear((g_a, g_mid, g_b), step_slopes, checks)
@@ -204,6 +207,38 @@ def _sample_one(ctx: LoopContext, step: _StepView, i: int, piece, sign):
         return ok | ~defined, jnp.asarray(factor, ctx.dtype)
 
     return search_parts, tuple(half_flags), far, verdict, curvature
+
+
+def curvatures_at(gap, interp, thetas, sa, sb, batched: bool):
+    """d²g/dθ² at the fractions `thetas` of the step [sa, sb], along its dense output (θ
+    units, as `envelope.curvature_bound` reads them).
+
+    Values and slopes alone cap what they can show of the curvature: over a part of width w
+    their differences never exceed ~2·max|ġ|/w, which for a gap oscillating at ω is
+    2/(ωw) of its true curvature ω²·amplitude: a part that holds more than a third of an
+    oscillation hides most of it. The second derivative read at the samples scales like the
+    curvature itself. Computed without derivatives (it decides, it is not an output)."""
+    sa, sb, interp = jax.lax.stop_gradient((sa, sb, interp))
+    h = sb - sa
+    if _rescales(interp):
+        unit, one = _on_unit_interval(interp)
+        state_at = unit.evaluate
+    else:
+        one = jnp.ones((), jnp.result_type(sa))
+        state_at = lambda theta: interp.evaluate(sa + h * theta)  # noqa: E731
+
+    def along(theta):
+        return gap(sa + h * theta, state_at(theta))
+
+    def second(theta):
+        slope = lambda th: jax.jvp(along, (th,), (one,))[1]  # noqa: E731
+        return jax.jvp(slope, (theta,), (one,))[1]
+
+    thetas_ = jnp.asarray(thetas, one.dtype)
+    if batched:
+        out = jax.vmap(second)(thetas_)
+        return tuple(out[j] for j in range(len(thetas)))
+    return tuple(second(thetas_[j]) for j in range(len(thetas)))
 
 
 def step_floor(ctx: LoopContext, piece, t_hi, t_lo, args_, flight_scale, sa, sb, y1,
