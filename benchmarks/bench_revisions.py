@@ -9,7 +9,8 @@ pinned to one core (`--core`, with `taskset` where there is one), and each case 
 least CPU time of its repeats. The cases are those of the in-step search's cost tables:
 ex1dof at μ = 0.2 with 10 impacts from a random phase of its cycle, one `jax.jit(simulate)`
 run with Dopri8 at rtol = atol = 2e-12 and with Tsit5 at 1e-10, and `bench_phases.runner`
-sweeps (Dopri8 2e-12) of 512 and 2048 lanes in phase and at random phases.
+sweeps (Dopri8 2e-12) of 512 and 2048 lanes in phase and at random phases, and the
+corrugated-floor campaign's lanes (`tests/hard/campaign_corrugated.py`, 1,024 systems).
 
 Writes DIR/revisions.json (every round's value) and DIR/revisions.md (the rounds side by
 side, and each revision's least value over the first revision's). The benchmark helpers
@@ -57,6 +58,8 @@ def measure(smoke: bool) -> dict:
         for kind, label in (("in_phase", "in phase"), ("random", "random phases")):
             xs = jnp.asarray(starts[kind])
             cases[f"sweep {lanes} {label}"] = (lambda xs=xs: sweep(xs), sweep_repeats, lanes)
+    if not smoke:
+        cases.update(_corrugated_cases())
     for fn, _, _ in cases.values():
         jax.block_until_ready(fn())
     best = dict.fromkeys(cases, float("inf"))
@@ -64,6 +67,27 @@ def measure(smoke: bool) -> dict:
         for name, (fn, repeats, per) in cases.items():
             best[name] = min(best[name], bp.cpu_seconds(fn, repeats) / per * 1e6)
     return {"package": gj.__file__, "us": best}
+
+
+def _corrugated_cases() -> dict:
+    """The corrugated-floor campaign's lanes (this checkout's `tests/hard`, the revision's
+    package): 1,024 systems, 2-D and 3-D floors, Tsit5 and Dopri8 at 1e-10, per system. Its
+    exact flights make long steps that the in-step search must resolve (docs/hard_cases.md)."""
+    import importlib.util
+
+    import jax.numpy as jnp
+
+    path = HERE.parent / "tests" / "hard" / "campaign_corrugated.py"
+    spec = importlib.util.spec_from_file_location("campaign_corrugated", path)
+    C = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(C)
+    x0, p = C.draw_mixed(1024, 11)
+    x0, p = jnp.asarray(x0), {key: jnp.asarray(value) for key, value in p.items()}
+    cases = {}
+    for name in ("Tsit5", "Dopri8"):
+        run = C.runner(name, 1e-10)
+        cases[f"corrugated floors 1024, {name} 1e-10"] = (lambda run=run: run(x0, p), 1, len(x0))
+    return cases
 
 
 def _worktree(rev: str, parent: Path) -> Path:
