@@ -13,6 +13,8 @@ from ._compiler import compiler_options as compiler_options
 from ._conditions import ConditionReport as ConditionReport
 from ._conditions import ConditionResult as ConditionResult
 from ._conditions import check_conditions as check_conditions
+from ._dynamics.basin_continuation import BasinsCurve as BasinsCurve
+from ._dynamics.basin_continuation import continue_basins as continue_basins
 from ._dynamics.basins import Attractor as Attractor
 from ._dynamics.basins import Basins as Basins
 from ._dynamics.basins import BasinStatus as BasinStatus

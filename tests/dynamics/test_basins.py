@@ -236,6 +236,43 @@ def test_table_labels_agree_with_the_reference_impact_map(table, table_reference
     assert table.num_undecided == chatter.sum()
 
 
+def table_args_of(gamma):
+    return dict(TABLE_ARGS, A=gamma * G / OMEGA**2)
+
+
+def test_basin_continuation_keeps_each_attractor_through_the_period_doubling(table):
+    """Γ = 1.0, 1.05, 1.09, 1.12 on the table's grid (its program: args are inputs): the
+    period-1 orbit (v⁺ = gT/2, closed form) doubles past Γ_PD = 1.0708 and keeps its id,
+    the period-3 orbit keeps the other; each value's fractions are `basins`' own (the
+    fixture at Γ = 1.05). With `match_distance` below the doubling's jump (measured
+    Hausdorff distance 0.53) the period-2 orbit is a new attractor instead."""
+    gammas = [1.0, 1.05, 1.09, 1.12]
+    curve = gj.continue_basins(TABLE, TABLE_STARTS, 0.0, table_args_of, gammas, surface=0,
+                               num_points=TABLE_POINTS, transient=TABLE_TRANSIENT,
+                               max_impacts=200)
+    assert curve.fractions.shape == (4, 2)
+    periods = [{key: a.period for key, a in found.items()} for found in curve.attractors]
+    (doubling,) = [key for key, period in periods[0].items() if period == 1]
+    assert [p[doubling] for p in periods] == [1, 1, 2, 2]
+    assert [p[1 - doubling] for p in periods] == [3, 3, 3, 3]
+    for found in curve.attractors[:2]:
+        np.testing.assert_allclose(found[doubling].points[0, 1], G / 2, rtol=0, atol=1e-6)
+    # Γ = 1.05: the same labels and fractions as the fixture, up to the ids' order.
+    ids = {k: key for key, a in curve.attractors[1].items()
+           for k, b in enumerate(table.attractors) if a.period == b.period}
+    mapped = np.array([ids[k] if k >= 0 else -1 for k in table.labels])
+    np.testing.assert_array_equal(curve.labels[1], mapped)
+    np.testing.assert_allclose(curve.fractions[1, [ids[0], ids[1]]], table.fractions, rtol=0,
+                               atol=0)
+    np.testing.assert_allclose(curve.fractions.sum(axis=1) + curve.num_undecided / 64, 1.0)
+    strict = gj.continue_basins(TABLE, TABLE_STARTS, 0.0, table_args_of, gammas[1:3],
+                                surface=0, num_points=TABLE_POINTS,
+                                transient=TABLE_TRANSIENT, max_impacts=200,
+                                match_distance=0.3)
+    assert strict.fractions.shape == (2, 3)
+    assert np.count_nonzero(strict.fractions[0]) == 2 and strict.fractions[0, 2] == 0
+
+
 def test_fractions_and_standard_errors_by_formula(table):
     total = len(TABLE_STARTS)
     counts = np.array([np.count_nonzero(table.labels == k) for k in range(table.num_attractors)])
@@ -497,3 +534,8 @@ def test_bad_arguments_raise_before_any_run():
         gj.basins(DUFFING, DUFFING_STARTS, 0.0, DUFFING_ARGS, num_points=8, transient=1.0)
     with pytest.raises(ValueError, match="chunk_size"):
         gj.basins(DUFFING, DUFFING_STARTS, 0.0, DUFFING_ARGS, chunk_size=0, **run)
+    with pytest.raises(ValueError, match="at least one"):
+        gj.continue_basins(DUFFING, DUFFING_STARTS, 0.0, lambda d: {"delta": d}, [], **run)
+    with pytest.raises(ValueError, match="match_distance"):
+        gj.continue_basins(DUFFING, DUFFING_STARTS, 0.0, lambda d: {"delta": d}, [0.5],
+                           match_distance=-1.0, **run)
