@@ -1,6 +1,7 @@
 """Dynamics at scale: time per start of Lyapunov spectra and basins through impacts.
 
-    python benchmarks/bench_dynamics.py [--quick] [--out DIR]   (default DIR: results/)
+    python benchmarks/bench_dynamics.py [--quick] [--starts N] [--periods P] [--basin-starts M]
+                                        [--out DIR]   (default DIR: results/)
 
 Writes DIR/dynamics.json and DIR/dynamics.md.
 
@@ -12,6 +13,9 @@ Writes DIR/dynamics.json and DIR/dynamics.md.
    tangent flow is exact), a terminal event at the stop, the saltation matrix applied by hand
    at each impact, QR once per period. Both give the same exponents (checked). heyoka has no
    jump maps; its variational equations would still need the saltation by hand: not run.
+   Beside it, the maximal exponent alone (`gj.maximal_lyapunov_exponent`, one tangent
+   vector) and the floor no tangent method can beat: the trajectory alone
+   (`vmap(gj.simulate)` over the same horizon). Peak memory: the resident set after it.
 2. **Basins** of a ball on a vibrating table (Γ = 1.05, e = 0.8: period-1 and period-3
    attractors and chattering starts), impact map, 16 points after 60 periods, random starts:
    `gj.basins` per start and its peak memory (resident set, `getrusage`).
@@ -112,8 +116,33 @@ def lyapunov_case(starts, periods):
     theirs = (time.perf_counter() - t) / len(peer_starts)
     ok = np.asarray(out.status) == int(gj.LyapunovStatus.SUCCESS)
     agree = float(np.max(np.abs(np.asarray(out.exponents)[: len(peer_starts)] - peer)))
+
+    @jax.jit
+    def maximal(x0s):
+        return jax.vmap(lambda x0: gj.maximal_lyapunov_exponent(
+            scene, x0, 0.0, periods * T, args, renormalize=T, rtol=RTOL, atol=ATOL,
+            max_impacts=16).exponents)(x0s)
+
+    @jax.jit
+    def trajectory(x0s):
+        return jax.vmap(lambda x0: gj.simulate(
+            scene, x0, 0.0, periods * T, args, rtol=RTOL, atol=ATOL,
+            max_impacts=2 * periods + 16, max_steps=1000 * periods).status)(x0s)
+
+    floors = {}
+    ended = np.asarray(trajectory(jnp.asarray(starts)))
+    if not np.all(ended == int(gj.Status.SUCCESS)):
+        raise RuntimeError(f"the trajectories ended with statuses {np.unique(ended)}")
+    for name, fn in (("maximal", maximal), ("trajectory", trajectory)):
+        jax.block_until_ready(fn(jnp.asarray(starts)))
+        t = time.perf_counter()
+        jax.block_until_ready(fn(jnp.asarray(starts)))
+        floors[name] = (time.perf_counter() - t) / len(starts) * 1e6
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # MiB (Linux: KiB)
     return {"case": "lyapunov", "starts": len(starts), "periods": periods,
             "first_call_s": first, "grazejax_us_per_start": ours * 1e6,
+            "maximal_us_per_start": floors["maximal"],
+            "trajectory_us_per_start": floors["trajectory"], "peak_rss_mib": peak,
             "scipy_us_per_start": theirs * 1e6, "scipy_starts": len(peer_starts),
             "ratio_scipy_over_grazejax": theirs / ours, "succeeded": int(ok.sum()),
             "max_exponent_difference": agree,
@@ -154,12 +183,18 @@ def table(rows) -> str:
         "|---|---:|---:|---:|",
         f"| `vmap(gj.lyapunov_spectrum)` | {lyap['grazejax_us_per_start']:.0f} | "
         f"{lyap['grazejax_us_per_start'] / lyap['periods']:.1f} | {lyap['first_call_s']:.1f} s |",
+        f"| `vmap(gj.maximal_lyapunov_exponent)` (k = 1) | {lyap['maximal_us_per_start']:.0f} | "
+        f"{lyap['maximal_us_per_start'] / lyap['periods']:.1f} | — |",
+        f"| the trajectory alone, `vmap(gj.simulate)` (the floor) | "
+        f"{lyap['trajectory_us_per_start']:.0f} | "
+        f"{lyap['trajectory_us_per_start'] / lyap['periods']:.1f} | — |",
         f"| SciPy DOP853 + variational equations + saltation | "
         f"{lyap['scipy_us_per_start']:.0f} | {lyap['scipy_us_per_start'] / lyap['periods']:.1f} | — |",
         "",
         f"SciPy / grazejax: {lyap['ratio_scipy_over_grazejax']:.0f}×; largest exponent "
         f"difference {lyap['max_exponent_difference']:.1e}; mean exponents "
-        f"{np.round(lyap['mean_exponents'], 5).tolist()} ({lyap['succeeded']} succeeded).",
+        f"{np.round(lyap['mean_exponents'], 5).tolist()} ({lyap['succeeded']} succeeded); "
+        f"peak resident memory after the Lyapunov runs {lyap['peak_rss_mib']:.0f} MiB.",
         "",
         f"Basins (vibrating table, Γ = 1.05, e = 0.8, {bas['starts']} starts): "
         f"{bas['grazejax_us_per_start']:.0f} µs per start, peak resident memory "
@@ -173,9 +208,14 @@ def table(rows) -> str:
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="fewer starts and periods")
+    parser.add_argument("--starts", type=int, help="Lyapunov starts (10,000; --quick 200)")
+    parser.add_argument("--periods", type=int, help="Lyapunov periods (1,000; --quick 100)")
+    parser.add_argument("--basin-starts", type=int, help="basin starts (100,000; --quick 10,000)")
     parser.add_argument("--out", default=str(Path(__file__).parent / "results"))
     ns = parser.parse_args(argv)
     starts, periods, count = (200, 100, 10_000) if ns.quick else (10_000, 1_000, 100_000)
+    starts, periods = ns.starts or starts, ns.periods or periods
+    count = ns.basin_starts or count
     rows = [lyapunov_case(_starts(starts), periods), basins_case(count)]
     out = Path(ns.out)
     out.mkdir(parents=True, exist_ok=True)
