@@ -146,7 +146,7 @@ def test_ball_grad_under_vmap_and_jit():
     for lane, p in enumerate(ps):
         assert_close(batched[lane], jax.grad(ball_loss_exact)(p), EXACT)
     assert_close(batched[0], ball_rca(ps[0]), MODES)
-    # Every step stored, under vmap (as carries: `stores_pay`; the log in the carry).
+    # Every step stored, under vmap (as carries: `storing_limit`; the log in the carry).
     every = diffrax.RecursiveCheckpointAdjoint(checkpoints=DIRECT_STEPS)
     stored = jax.jit(jax.vmap(jax.grad(lambda p: ball_loss(p, every, DIRECT_STEPS))))(ps)
     assert_close(stored, batched, MODES)
@@ -629,7 +629,7 @@ def test_checkpoints_at_max_steps_mean_every_step():
 
 # Both ways of storing every step in reverse mode: each step's linearisation (small
 # residuals, `_loop/stored.py`) or its carry (Equinox's checkpointed loop), whichever
-# `stores_pay` picks for a scene; both must give jacfwd's gradients. JAX's caches are
+# `storing_limit` picks for a scene; both must give jacfwd's gradients. JAX's caches are
 # cleared around each, as `simulate`'s compiled programs do not depend on the threshold.
 @pytest.fixture(params=[True, False], ids=["linearisations", "carries"])
 def stores(request, monkeypatch):

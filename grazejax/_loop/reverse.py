@@ -20,7 +20,7 @@ from .forward import stages_log
 from .program import Program
 from .replay import row, set_row, unrecorded_decisions
 from .state import flush_log, has_staged_rows, impact_log, packing, stage_log, with_full_log
-from .stored import residual_bytes, stored_while_loop
+from .stored import stored_while_loop
 
 
 def two_level_checkpointed(cond, program: "Program", init, bound: int):
@@ -28,7 +28,7 @@ def two_level_checkpointed(cond, program: "Program", init, bound: int):
     two levels: an Equinox checkpointed loop stores the state every `chunk ≈ √bound`
     steps, and each chunk is a loop that stores its steps' linearisations
     (`_loop/stored.py`) while the backward pass crosses it, or, where a step's residuals
-    are large (`stores_pay`), an Equinox loop with a checkpoint per step. The price is
+    are large (`storing_limit`), an Equinox loop with a checkpoint per step. The price is
     one more forward pass over each chunk; memory: ~√bound carries and `chunk` rows of
     residuals (or carries), whatever the run's length.
 
@@ -73,7 +73,7 @@ def two_level_checkpointed(cond, program: "Program", init, bound: int):
         z = inner_unpack(packed)
         return cond(z) & ~eqxi.unvmap_any(has_staged_rows(z)) if staging else cond(z)
 
-    store_linearisations = stores_pay(program, init)
+    limit = storing_limit(init)
     # The step decisions, recorded by the first pass and replayed where the backward pass
     # runs a chunk again (`_loop/replay.py`): row n for a lane's step n
     # (a chunk writes `chunk` rows from its first step; rows past its last step are
@@ -88,14 +88,16 @@ def two_level_checkpointed(cond, program: "Program", init, bound: int):
         chunk_steps = c.num_steps + jnp.arange(chunk)
         forced = jax.lax.stop_gradient(row(record, chunk_steps))
         staged, full_log = stage_log(c, rows) if staging else (c, None)
-        if store_linearisations:
-            staged, _, decided = stored_while_loop(
-                inner_cond, _packed_deciding(program, inner_pack, inner_unpack, False),
-                inner_pack(staged), chunk, replay=forced,
-                apart=_landings_apart(
-                    program, inner_unpack, chunk,
-                    _packed_deciding(program, inner_pack, inner_unpack, True)),
-            )
+        stored = limit >= 0 and stored_while_loop(
+            inner_cond, _packed_deciding(program, inner_pack, inner_unpack, False),
+            inner_pack(staged), chunk, replay=forced,
+            apart=_landings_apart(
+                program, inner_unpack, chunk,
+                _packed_deciding(program, inner_pack, inner_unpack, True)),
+            max_residual_bytes=limit,
+        )
+        if stored:
+            staged, _, decided = stored
         else:
             staged, decided = checkpointed_deciding(
                 inner_cond, program, inner_pack, inner_unpack, staged, chunk, chunk,
@@ -164,32 +166,39 @@ def every_step_stored(cond, program: "Program", init, bound: int):
     Equinox's checkpointed loop with a checkpoint per step in the same process:
     3.56/3.76/3.92x -> 2.94/3.24/3.76x the primal at 10/100/1000 impacts; with a landing's
     residuals stored apart (`_landings_apart`) 3.07/3.40/3.84x -> 2.26/2.43/2.70x (another
-    machine, separate processes, min of 7/7/3)."""
+    machine, separate processes, min of 7/7/3).
+
+    None where a step's residuals are over `storing_limit`: storing them does not pay."""
+    limit = storing_limit(init)
+    if limit < 0:
+        return None
     if not stages_log(program, init):
         pack, unpack = packing(init)
 
         def plain(landing):
             return lambda packed: pack(program.step(unpack(packed), landing=landing))
 
-        small, _ = stored_while_loop(
+        stored = stored_while_loop(
             lambda packed: cond(unpack(packed)), plain(False), pack(init), bound,
             apart=_landings_apart(program, unpack, bound, plain(True)),
+            max_residual_bytes=limit,
         )
-        return unpack(small)
+        return stored and unpack(stored[0])
     staged, full_log = stage_log(init, program.log_rows_per_landing)
     pack, unpack = packing(staged)
 
     def step(landing):
         return lambda packed: pack(_staging_own_rows(program, landing)(unpack(packed)))
 
-    small, log = stored_while_loop(
+    stored = stored_while_loop(
         lambda packed: cond(unpack(packed)), step(False), pack(staged), bound,
         apart=_landings_apart(program, unpack, bound, step(True)),
         buffers=full_log,
         write=lambda packed, log: impact_log(flush_log(unpack(packed), log)),
         ends_block=lambda packed: eqxi.unvmap_any(has_staged_rows(unpack(packed))),
+        max_residual_bytes=limit,
     )
-    return with_full_log(unpack(small), log)
+    return stored and with_full_log(unpack(stored[0]), stored[1])
 
 
 def every_step_staged(cond, program: "Program", init, bound: int):
@@ -261,28 +270,23 @@ def _nested(step, pack, unpack, *, deciding: bool = False):
     return body
 
 
-def stores_pay(program: "Program", init) -> bool:
-    """Whether reverse mode stores each step's linearisation (`_loop/stored.py`) rather
-    than a carry per step that the backward pass runs again (Equinox's checkpointed loop).
+def storing_limit(init) -> int:
+    """The most residual bytes per step for which reverse mode stores each step's
+    linearisation (`_loop/stored.py`) rather than a carry per step that the backward
+    pass runs again (Equinox's checkpointed loop); −1: never (`stored_while_loop`'s
+    `max_residual_bytes`, measured on the step's own linearisation).
 
-    Stores pay where a step's residuals are small (under `_STORED_RESIDUAL_BYTES`): the
+    Stores pay where a step's residuals are small (up to `_STORED_RESIDUAL_BYTES`): the
     backward pass then applies them instead of running the step again. Where they are
     large (a Fourier forcing's sines and cosines of every stage), staging and storing
-    them costs more than the re-run; under `vmap` the stores hold every lane's residuals,
-    so batched runs keep carries. The measurements behind the threshold are in
+    them costs more than the re-run; under `vmap` the stores would hold every lane's
+    residuals, so batched runs keep carries. The measurements behind the threshold are in
     `benchmarks/README.md`, *Each step's linearisation stored*.
     """
-    if under_vmap(init):
-        return False
-    if stages_log(program, init):
-        init = stage_log(init, program.log_rows_per_landing)[0]
-    pack, unpack = packing(init)
-    # (the other steps' rows: a landing's are stored apart, `_landings_apart`)
-    step = lambda packed: pack(program.step(unpack(packed), landing=False))  # noqa: E731
-    return residual_bytes(step, pack(init)) <= _STORED_RESIDUAL_BYTES
+    return -1 if under_vmap(init) else _STORED_RESIDUAL_BYTES
 
 
-# The most residual bytes per step that reverse mode stores (see `stores_pay`).
+# The most residual bytes per step that reverse mode stores (see `storing_limit`).
 _STORED_RESIDUAL_BYTES = 1024
 
 

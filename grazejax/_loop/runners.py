@@ -20,7 +20,6 @@ from .reverse import (
     checkpointed_deciding,
     every_step_staged,
     every_step_stored,
-    stores_pay,
     two_level_checkpointed,
 )
 from .state import packing
@@ -55,10 +54,12 @@ class CheckpointedLoop(AbstractLoop):
         checkpoints = checkpoint_count(self.checkpoints, max_steps)
         if checkpoints is None:
             return two_level_checkpointed(cond, program, init, bound)
-        if checkpoints == bound and stores_pay(program, init):
-            return every_step_stored(cond, program, init, bound)
-        if checkpoints == bound and stages_log(program, init):
-            return every_step_staged(cond, program, init, bound)
+        if checkpoints == bound:
+            final = every_step_stored(cond, program, init, bound)  # (None: does not pay)
+            if final is not None:
+                return final
+            if stages_log(program, init):
+                return every_step_staged(cond, program, init, bound)
         pack, unpack = packing(init)
         final, _ = checkpointed_deciding(
             lambda packed: cond(unpack(packed)), program, pack, unpack, init, bound,

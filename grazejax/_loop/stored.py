@@ -18,7 +18,7 @@ applies its pullbacks in an inner loop of the same kind. Forced impact oscillato
 impacts, every step stored, one core, min of 11: 3.0x the primal, against 3.55x with
 Equinox's checkpointed loop storing every step. Storing pays only while a step's
 residuals are small (many pieces, and their store, cost more than running a step again):
-`reverse.py: stores_pay` picks this loop or Equinox's.
+`reverse.py: storing_limit` picks this loop or Equinox's.
 
 Steps of another kind (`apart=`: the impact loop's landings) are linearised on their own
 and stored in rows of their own: one `cond` inside the step would store the union of
@@ -51,6 +51,7 @@ def stored_while_loop(
     block: int = 8,
     replay=None,
     apart=None,
+    max_residual_bytes: int | None = None,
 ):
     """`while cond_fun(small): small = step(small)`, at most `max_steps` steps; with
     `buffers = write(small, buffers)` after every step for which `ends_block(small)` and
@@ -72,6 +73,11 @@ def stored_while_loop(
     branch would otherwise add its residuals to every step's row (forced impact
     oscillator: 864 bytes a step, 566 without the landing's). A step ends its block after
     it; the other steps are `step(small)` for states that are not apart.
+
+    With `max_residual_bytes`, returns None (and builds no loop) where a step's residuals
+    (the other steps', not those stored apart) take more bytes than that: storing them
+    does not pay (`reverse.storing_limit`). The step's linearisation that measures them is
+    the one the forward pass replays (`_Linearised`): it is traced once.
 
     The impact loop's contract: `cond_fun` and `ends_block` are unbatched
     (`eqxi.unvmap_any`), as `step` freezes finished lanes itself and every lane's residuals
@@ -102,20 +108,15 @@ def stored_while_loop(
             apart_step = lambda small, forced: (plain_apart(small), ())  # noqa: E731
         fns.is_apart, apart_tests = jax.closure_convert(is_apart, small)
         fns.apart_step, apart_consts = jax.closure_convert(apart_step, small, forced)
+    fns.linearised_step = _Linearised(fns, fns.step, small, forced, tuple(step_consts))
+    if (max_residual_bytes is not None
+            and _nbytes(fns.linearised_step.residual_shapes) > max_residual_bytes):
+        return None
     small, buffers, decisions = _stored(
         fns, small, buffers, jax.lax.stop_gradient(replay),
         (tuple(cond_consts), tuple(ends_consts), tuple(apart_tests)), tuple(step_consts),
         tuple(write_consts), tuple(apart_consts))
     return (small, buffers, decisions) if deciding else (small, buffers)
-
-
-def residual_bytes(step: Callable[[Any], Any], small) -> int:
-    """The bytes of residuals that `stored_while_loop` would store per step (traced with
-    `jax.eval_shape`; nothing runs)."""
-    closed, consts = jax.closure_convert(lambda s, _: (step(s), ()), small, ())
-    fns = _Fns(None, None, closed, None, 1, 1, False)
-    out = jax.eval_shape(lambda s: _step_linearised(fns, s, (), tuple(consts))[1][0], small)
-    return _nbytes(out)
 
 
 class _Fns:
@@ -127,6 +128,9 @@ class _Fns:
         self.max_steps, self.block, self.deciding = max_steps, block, deciding
         self.step_layout = self.write_layout = self.apart_layout = None
         self.is_apart = self.apart_step = None  # (see `stored_while_loop`'s `apart`)
+        # (each kind of step's `_Linearised`: the step's by `stored_while_loop`, the
+        # apart step's by `_fwd`)
+        self.linearised_step = self.linearised_apart = None
         self.apart_rows = 0
 
     def block_goes_on(self, j, small, tests):
@@ -328,27 +332,55 @@ def _write_linearised(fns, small, buffers, write_consts):
     return out, jax.tree.flatten(pullback)
 
 
-def _find_layouts(fns, small, buffers, replay, step_consts, write_consts, apart_consts):
-    """Trace one step of each kind and one write (`eval_shape` runs nothing) for the
-    residuals' layouts."""
+class _Linearised:
+    """A step's linearisation traced once: `(outputs, decided), residual leaves` from
+    `(small, forced, consts)`, replayed from its jaxpr wherever the forward pass runs the
+    step (`jax.core.eval_jaxpr` binds the recorded operations again: no Python function,
+    no `jax.vjp` machinery). Linearising the impact loop's step is most of a reverse-mode
+    program's tracing (~2.4 s each for the bouncing ball's step). `.residual_shapes` gives
+    the residuals' layout and size; `.treedef` rebuilds the pullback from them."""
 
-    def trace(small, buffers):
-        (small, _), (leaves, treedef) = _step_linearised(fns, small, _row(replay, 0),
-                                                         step_consts)
-        # Pieces only where the step's own buffers are small: otherwise its loop runs on
-        # the dataflow executor anyway, and one row per dtype costs the fewest kernels.
-        small_buffers = all(_nbytes(x) <= SEQUENTIAL_BUFFER_BYTES
-                            for x in jax.tree.leaves((small, step_consts)))
-        fns.step_layout = _Layout(leaves, treedef, fns.block if small_buffers else None)
+    def __init__(self, fns, step, small, forced, consts):
+        def linearised(small, forced, consts):
+            (out, decided), (leaves, treedef) = _step_linearised(fns, small, forced, consts,
+                                                                 step)
+            self.treedef = treedef
+            return (out, decided), leaves
+
+        self.closed, shapes = jax.make_jaxpr(linearised, return_shape=True)(
+            small, forced, consts)
+        self.out_tree = jax.tree.structure(shapes)
+        self.residual_shapes = shapes[1]
+
+    def __call__(self, small, forced, consts):
+        flat = jax.tree.leaves((small, forced, consts))
+        out = jax.core.eval_jaxpr(self.closed.jaxpr, self.closed.consts, *flat)
+        return jax.tree.unflatten(self.out_tree, out)
+
+
+def _find_layouts(fns, small, buffers, replay, step_consts, write_consts, apart_consts):
+    """The residuals' layouts: of the step's linearisation (traced by `stored_while_loop`),
+    of the step stored apart (traced here, once: `_Linearised`) and of one write
+    (`eval_shape` runs nothing)."""
+    forced = _row(replay, 0)
+    leaves = fns.linearised_step.residual_shapes
+    # Pieces only where the step's own buffers are small: otherwise its loop runs on
+    # the dataflow executor anyway, and one row per dtype costs the fewest kernels.
+    small_buffers = all(_nbytes(x) <= SEQUENTIAL_BUFFER_BYTES
+                        for x in jax.tree.leaves((small, step_consts)))
+    fns.step_layout = _Layout(leaves, fns.linearised_step.treedef,
+                              fns.block if small_buffers else None)
+
+    def trace_write(small, buffers):
         _, (leaves, treedef) = _write_linearised(fns, small, buffers, write_consts)
         fns.write_layout = _Layout(leaves, treedef, 1)
-        if fns.apart_step is not None:
-            _, (leaves, treedef) = _step_linearised(fns, small, _row(replay, 0), apart_consts,
-                                                    fns.apart_step)
-            fns.apart_layout = _Layout(leaves, treedef, None)
         return 0
 
-    jax.eval_shape(trace, small, buffers)
+    jax.eval_shape(trace_write, small, buffers)
+    if fns.apart_step is not None:
+        fns.linearised_apart = _Linearised(fns, fns.apart_step, small, forced, apart_consts)
+        fns.apart_layout = _Layout(fns.linearised_apart.residual_shapes,
+                                   fns.linearised_apart.treedef, None)
 
 
 def _fwd(fns, small, buffers, replay, tests, step_consts, write_consts, apart_consts):
@@ -363,8 +395,7 @@ def _fwd(fns, small, buffers, replay, tests, step_consts, write_consts, apart_co
 
     def inner_step(state):
         j, k, small, staging, (forced, staged) = state
-        (small, decided), (leaves, _) = _step_linearised(fns, small, _row(forced, j),
-                                                         step_consts)
+        (small, decided), leaves = fns.linearised_step(small, _row(forced, j), step_consts)
         staging = tuple(lax.dynamic_update_index_in_dim(s, r, j, 0)
                         for s, r in zip(staging, step_layout.pack(leaves), strict=True))
         return j + 1, k + 1, small, staging, (forced, _set_row(staged, j, decided))
@@ -424,8 +455,7 @@ def _apart_step(fns, b, k, small, due, record, apart, padded, tests, apart_const
     runs = due & fns.apart(small, tests) & (k < fns.max_steps) & fns.cond(small, *tests[0])
 
     def run(small):
-        (small, decided), (leaves, _) = _step_linearised(
-            fns, small, _row(padded, k), apart_consts, fns.apart_step)
+        (small, decided), leaves = fns.linearised_apart(small, _row(padded, k), apart_consts)
         return small, decided, fns.apart_layout.pack(leaves)
 
     def skip(small):
