@@ -66,16 +66,19 @@ def _release_compiled_programs():
     release_compiled_programs()
 
 
-# Each job reports how many programs XLA compiled and how long that took (this process and
+# Each job reports how many programs XLA compiled and how long that took, how long JAX
+# spent tracing programs (Python: the persistent cache cannot save it) (this process and
 # its xdist workers; not the child processes the tests start), and how many programs the
-# persistent cache served instead: compiling is most of the suite's time.
-_compiles = {"programs": 0, "seconds": 0.0, "cache hits": 0}
+# persistent cache served instead: compiling and tracing are most of the suite's time.
+_compiles = {"programs": 0, "seconds": 0.0, "tracing": 0.0, "cache hits": 0}
 
 
 def _on_duration(event, duration, **_):
     if event == "/jax/core/compile/backend_compile_duration":
         _compiles["programs"] += 1
         _compiles["seconds"] += duration
+    elif event == "/jax/core/compile/jaxpr_trace_duration":
+        _compiles["tracing"] += duration
 
 
 def _on_event(event, **_):
@@ -98,7 +101,8 @@ def pytest_terminal_summary(terminalreporter):
         return
     terminalreporter.write_line(
         f"[{_job(terminalreporter.config)} job] XLA compiled {_compiles['programs']} programs "
-        f"in {_compiles['seconds']:.0f} s; the persistent cache served {_compiles['cache hits']}")
+        f"in {_compiles['seconds']:.0f} s; JAX traced for {_compiles['tracing']:.0f} s; "
+        f"the persistent cache served {_compiles['cache hits']}")
 
 
 def pytest_collection_modifyitems(config, items):
