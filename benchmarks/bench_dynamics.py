@@ -1,6 +1,7 @@
 """Dynamics at scale: time per start of Lyapunov spectra and basins through impacts.
 
     python benchmarks/bench_dynamics.py [--quick] [--starts N] [--periods P] [--basin-starts M]
+                                        [--floor-starts F] [--peer-starts S]
                                         [--out DIR]   (default DIR: results/)
 
 Writes DIR/dynamics.json and DIR/dynamics.md.
@@ -20,8 +21,10 @@ Writes DIR/dynamics.json and DIR/dynamics.md.
    attractors and chattering starts), impact map, 16 points after 60 periods, random starts:
    `gj.basins` per start and its peak memory (resident set, `getrusage`).
 
-Time per start is wall time over the starts of a second call (compile excluded; the first
-call, of the same shape, is reported too); one process, this machine's cores.
+Time per start is wall time over the starts of one call of a program compiled ahead of time
+for their shape (its compile is reported as the first call); one process, this machine's
+cores. The maximal exponent and the trajectory floor run on the first `--floor-starts`
+starts and SciPy on the first `--peer-starts`: each figure is a time per start.
 """
 
 from __future__ import annotations
@@ -88,7 +91,23 @@ def scipy_spectrum(x0, periods):
     return np.sort(logs / (periods * T))[::-1]
 
 
-def lyapunov_case(starts, periods):
+def _compiled(fn, x):
+    """`fn` compiled ahead of time for `x`'s shape, and the seconds that took (tracing,
+    lowering, XLA): the first call's cost without running the program twice."""
+    t = time.perf_counter()
+    compiled = fn.lower(x).compile()
+    return compiled, time.perf_counter() - t
+
+
+def _timed_per_start(compiled, x):
+    import jax
+
+    t = time.perf_counter()
+    out = jax.block_until_ready(compiled(x))
+    return out, (time.perf_counter() - t) / x.shape[0]
+
+
+def lyapunov_case(starts, periods, floor_starts, peer_starts):
     import jax
     import jax.numpy as jnp
 
@@ -104,18 +123,15 @@ def lyapunov_case(starts, periods):
             scene, x0, 0.0, periods * T, args, renormalize=T, rtol=RTOL, atol=ATOL,
             max_impacts=16))(x0s)
 
-    t = time.perf_counter()  # (the same shape as the timed call: one program)
-    jax.block_until_ready(spectra(jnp.asarray(starts)))
-    first = time.perf_counter() - t
+    x = jnp.asarray(starts)
+    compiled, first = _compiled(spectra, x)
+    out, ours = _timed_per_start(compiled, x)
+    peer_x0s = starts[:peer_starts]
     t = time.perf_counter()
-    out = jax.block_until_ready(spectra(jnp.asarray(starts)))
-    ours = (time.perf_counter() - t) / len(starts)
-    peer_starts = starts[: max(2, len(starts) // 50)]
-    t = time.perf_counter()
-    peer = np.stack([scipy_spectrum(x0, periods) for x0 in peer_starts])
-    theirs = (time.perf_counter() - t) / len(peer_starts)
+    peer = np.stack([scipy_spectrum(x0, periods) for x0 in peer_x0s])
+    theirs = (time.perf_counter() - t) / len(peer_x0s)
     ok = np.asarray(out.status) == int(gj.LyapunovStatus.SUCCESS)
-    agree = float(np.max(np.abs(np.asarray(out.exponents)[: len(peer_starts)] - peer)))
+    agree = float(np.max(np.abs(np.asarray(out.exponents)[: len(peer_x0s)] - peer)))
 
     @jax.jit
     def maximal(x0s):
@@ -129,21 +145,18 @@ def lyapunov_case(starts, periods):
             scene, x0, 0.0, periods * T, args, rtol=RTOL, atol=ATOL,
             max_impacts=2 * periods + 16, max_steps=1000 * periods).status)(x0s)
 
-    floors = {}
-    ended = np.asarray(trajectory(jnp.asarray(starts)))
-    if not np.all(ended == int(gj.Status.SUCCESS)):
-        raise RuntimeError(f"the trajectories ended with statuses {np.unique(ended)}")
+    floors, x_floor = {}, x[:floor_starts]
     for name, fn in (("maximal", maximal), ("trajectory", trajectory)):
-        jax.block_until_ready(fn(jnp.asarray(starts)))
-        t = time.perf_counter()
-        jax.block_until_ready(fn(jnp.asarray(starts)))
-        floors[name] = (time.perf_counter() - t) / len(starts) * 1e6
+        result, floors[name] = _timed_per_start(_compiled(fn, x_floor)[0], x_floor)
+        if name == "trajectory" and not np.all(np.asarray(result) == int(gj.Status.SUCCESS)):
+            raise RuntimeError(f"the trajectories ended with statuses {np.unique(result)}")
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # MiB (Linux: KiB)
     return {"case": "lyapunov", "starts": len(starts), "periods": periods,
             "first_call_s": first, "grazejax_us_per_start": ours * 1e6,
-            "maximal_us_per_start": floors["maximal"],
-            "trajectory_us_per_start": floors["trajectory"], "peak_rss_mib": peak,
-            "scipy_us_per_start": theirs * 1e6, "scipy_starts": len(peer_starts),
+            "floor_starts": int(x_floor.shape[0]),
+            "maximal_us_per_start": floors["maximal"] * 1e6,
+            "trajectory_us_per_start": floors["trajectory"] * 1e6, "peak_rss_mib": peak,
+            "scipy_us_per_start": theirs * 1e6, "scipy_starts": len(peer_x0s),
             "ratio_scipy_over_grazejax": theirs / ours, "succeeded": int(ok.sum()),
             "max_exponent_difference": agree,
             "mean_exponents": np.nanmean(np.asarray(out.exponents)[ok], axis=0).tolist()}
@@ -177,7 +190,8 @@ def table(rows) -> str:
     lyap, bas = rows
     return "\n".join([
         f"Lyapunov spectra (impact oscillator, k = 2, {lyap['periods']} periods, "
-        f"{lyap['starts']} starts; SciPy on {lyap['scipy_starts']}):",
+        f"{lyap['starts']} starts; the maximal exponent and the trajectory on "
+        f"{lyap['floor_starts']}, SciPy on {lyap['scipy_starts']}):",
         "",
         "| | µs per start | per period | first call |",
         "|---|---:|---:|---:|",
@@ -211,12 +225,17 @@ def main(argv=None):
     parser.add_argument("--starts", type=int, help="Lyapunov starts (10,000; --quick 200)")
     parser.add_argument("--periods", type=int, help="Lyapunov periods (1,000; --quick 100)")
     parser.add_argument("--basin-starts", type=int, help="basin starts (100,000; --quick 10,000)")
+    parser.add_argument("--floor-starts", type=int, default=1_000,
+                        help="starts for the maximal exponent and the trajectory (1,000)")
+    parser.add_argument("--peer-starts", type=int, default=40,
+                        help="starts SciPy runs (40: its time per start is what is compared)")
     parser.add_argument("--out", default=str(Path(__file__).parent / "results"))
     ns = parser.parse_args(argv)
     starts, periods, count = (200, 100, 10_000) if ns.quick else (10_000, 1_000, 100_000)
     starts, periods = ns.starts or starts, ns.periods or periods
     count = ns.basin_starts or count
-    rows = [lyapunov_case(_starts(starts), periods), basins_case(count)]
+    rows = [lyapunov_case(_starts(starts), periods, min(ns.floor_starts, starts),
+                      min(ns.peer_starts, starts)), basins_case(count)]
     out = Path(ns.out)
     out.mkdir(parents=True, exist_ok=True)
     (out / "dynamics.json").write_text(json.dumps(rows, indent=1))
