@@ -35,6 +35,7 @@ that samples the step.
 import functools
 
 import jax.numpy as jnp
+import numpy as np
 
 from .._roots import safe_divide
 
@@ -64,7 +65,7 @@ def curvature_bound(values, slopes, fractions, second=()):
     return largest + jnp.minimum(largest - smallest, (SAFETY - 1) * largest)
 
 
-def lower_bound(p0, p1, d0, d1, w: float, K):
+def lower_bound(p0, p1, d0, d1, w, K):
     """A lower bound of g over a part [0, w] with |g''| ≤ K: `(over [0, w], over (0, w])`.
 
     The second leaves out the value at x = 0, for a part that starts on the surface (the
@@ -96,7 +97,7 @@ def lower_bound(p0, p1, d0, d1, w: float, K):
     return jnp.maximum(tangents, chord), after_start
 
 
-def part_resolution(p0, p1, d0, d1, w: float, K, floor, known, flagged, restart):
+def part_resolution(p0, p1, d0, d1, w, K, floor, known, flagged, restart):
     """Whether a part's samples and the curvature bound K prove it free of an unflagged
     contact: `(resolved, ratio)`, `ratio` the factor by which its curvature slack exceeds
     what would prove it (squared: the slack shrinks like h², the caller's shrink table
@@ -127,9 +128,15 @@ def part_resolution(p0, p1, d0, d1, w: float, K, floor, known, flagged, restart)
 def clear_of_surface(values, slopes, fractions, K):
     """Whether the bound proves every part of a step on the free side clear of Φ = 0
     (strictly above it): then the step needs no verdict (`gaps.sample_gaps`' screen)."""
-    clear = jnp.array(True)
-    for j in range(len(values) - 1):
-        w = fractions[j + 1] - fractions[j]
-        low, _ = lower_bound(values[j], values[j + 1], slopes[j], slopes[j + 1], w, K)
-        clear = clear & (low > 0)
-    return clear
+    low, _ = lower_bound(*part_arrays(values, slopes, fractions), K)
+    return jnp.all(low > 0)
+
+
+def part_arrays(values, slopes, fractions):
+    """`(p₀, p₁, d₀, d₁, w)` of every part between consecutive samples, as arrays over the
+    parts: the bounds are elementwise, so one copy of their arithmetic serves all parts
+    (a copy per part was ~10% of a run's program, traced again by every transform of it;
+    elementwise, the values are the same bits)."""
+    p, d = jnp.stack(values), jnp.stack(slopes)
+    w = jnp.asarray(np.diff(np.asarray(fractions, float)), p.dtype)
+    return p[:-1], p[1:], d[:-1], d[1:], w

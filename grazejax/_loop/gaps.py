@@ -20,7 +20,7 @@ from .._custom_types import BoolScalar, RealScalar
 from .._geometry import FLOOR_ULPS
 from .._roots import safe_divide
 from .context import LoopContext
-from .envelope import clear_of_surface, curvature_bound, part_resolution
+from .envelope import clear_of_surface, curvature_bound, part_arrays, part_resolution
 from .events import (
     CHECK_FRACTIONS,
     LIFT_FRACTION,
@@ -187,20 +187,18 @@ def _sample_one(ctx: LoopContext, step: _StepView, i: int, piece, sign):
         ok, factor = gap_resolution((g_a, g_mid, g_b), step_slopes, checks,
                                     tuple(half_flags), floor, c.restart[i], known,
                                     whole.g_start)
-        worst = jnp.zeros_like(g_a)
         # A tangential lift-off (`step_ends`: ġ(sa) = 0 to round-off, the flight rising)
         # has g ≈ g̈·s²/2 from the surface: a bound with a safety factor on g'' can never
         # prove such a gap positive, at any step length, so its step is left to the
         # halves' tests, which judge it from the lift-off point.
         lifting = whole.s_start > sa
-        for j, flag in enumerate(flags):
-            resolved, ratio = part_resolution(
-                values[j], values[j + 1], theta_slopes[j], theta_slopes[j + 1],
-                PART_FRACTIONS[j + 1] - PART_FRACTIONS[j], curvature, floor, known,
-                flag | lifting, c.restart[i] & (j == 0),
-            )
-            ok = ok & resolved
-            worst = jnp.maximum(worst, ratio)
+        flagged = jnp.stack([flag | lifting for flag in flags])
+        starts_on_surface = jnp.stack([c.restart[i] & (j == 0) for j in range(len(flags))])
+        resolved, ratio = part_resolution(
+            *part_arrays(values, theta_slopes, PART_FRACTIONS), curvature, floor, known, flagged,
+            starts_on_surface)
+        ok = ok & jnp.all(resolved)
+        worst = jnp.maximum(jnp.zeros_like(g_a), jnp.max(ratio))
         factor = jnp.minimum(factor, shrink_for(worst))
         # (the branches of the caller's `cond` must agree in type: float32 runs too)
         return ok | ~defined, jnp.asarray(factor, ctx.dtype)
