@@ -135,7 +135,7 @@ def clear_of_surface(values, slopes, fractions, K):
 def part_arrays(values, slopes, fractions):
     """`(p₀, p₁, d₀, d₁, w)` of every part between consecutive samples, as arrays over the
     parts: the bounds are elementwise, so one copy of their arithmetic serves all parts
-    (a copy per part was ~10% of a run's program, traced again by every transform of it;
+    (a copy per part would be traced and compiled again by every transform of a run;
     elementwise, the values are the same bits)."""
     p, d = jnp.stack(values), jnp.stack(slopes)
     w = jnp.asarray(np.diff(np.asarray(fractions, float)), p.dtype)

@@ -232,9 +232,9 @@ def curvatures_at(gap, interp, thetas, sa, sb):
         return jax.jvp(slope, (theta,), (one,))[1]
 
     # One copy of the nested JVP for all the fractions, in single runs too: a copy per
-    # fraction made ~15% of a run's program (8,320 → 7,070 operations on the impact
-    # oscillator), and every transform of the run (jacfwd, an orbit's Newton, its
-    # derivatives) traces and compiles each copy again; the bits are the same.
+    # fraction is a large share of a run's program, and every transform of the run
+    # (jacfwd, an orbit's Newton, its derivatives) traces and compiles each copy again;
+    # the values are the same bits.
     out = jax.vmap(second)(jnp.asarray(thetas, one.dtype))
     return tuple(out[j] for j in range(len(thetas)))
 
