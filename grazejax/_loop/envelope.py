@@ -32,7 +32,6 @@ step, each sample near an inflection point) remains unseen, as it would by any m
 that samples the step.
 """
 
-import functools
 
 import jax.numpy as jnp
 import numpy as np
@@ -43,25 +42,26 @@ from .._roots import safe_divide
 SAFETY = 2.0
 
 
-def curvature_bound(values, slopes, fractions, second=()):
+def curvature_bound(values, slopes, fractions, second=None):
     """A bound of max|g''| (in θ) from the lower bounds that consecutive samples give,
     |d₁ − d₀|/w and 2|p₁ − p₀ − d₀w|/w², 2|p₀ − p₁ + d₁w|/w² for each part of width w, and
-    |g''| at the samples (`second`, where given): the largest, plus the spread between
-    the largest and the smallest, at most (`SAFETY` − 1) times the largest. Where g'' is constant (a parabola: free fall onto a plane) every
-    estimate is the same and the bound is exact, so it retakes no step that the gap itself
-    does not call for; where the gap oscillates faster than the samples the estimates
-    scatter and the bound is `SAFETY` times the largest."""
-    estimates = []
-    for j in range(len(values) - 1):
-        w = fractions[j + 1] - fractions[j]
-        p0, p1, d0, d1 = values[j], values[j + 1], slopes[j], slopes[j + 1]
-        estimates.append(jnp.abs(d1 - d0) / w)
-        estimates.append(2 * jnp.abs(p1 - p0 - d0 * w) / (w * w))
-        estimates.append(2 * jnp.abs(p0 - p1 + d1 * w) / (w * w))
+    |g''| at the samples (`second`, an array over them, where given): the largest, plus
+    the spread between the largest and the smallest, at most (`SAFETY` − 1) times the
+    largest. Where g'' is constant (a parabola: free fall onto a plane) every estimate is
+    the same and the bound is exact, so it retakes no step that the gap itself does not
+    call for; where the gap oscillates faster than the samples the estimates scatter and
+    the bound is `SAFETY` times the largest."""
+    p0, p1, d0, d1, w = part_arrays(values, slopes, fractions)
+    estimates = [jnp.abs(d1 - d0) / w,
+                 2 * jnp.abs(p1 - p0 - d0 * w) / (w * w),
+                 2 * jnp.abs(p0 - p1 + d1 * w) / (w * w)]
     # (a second derivative that is not finite says nothing: the differences decide)
-    estimates.extend(jnp.where(jnp.isfinite(c), jnp.abs(c), 0.0) for c in second)
-    largest = functools.reduce(jnp.maximum, estimates)
-    smallest = functools.reduce(jnp.minimum, estimates)
+    if second is not None:
+        estimates.append(jnp.where(jnp.isfinite(second), jnp.abs(second), 0.0))
+    # (arrays over the parts and samples: one copy of the arithmetic, the same bits as a
+    # copy per part, as max and min are exact)
+    estimates = jnp.concatenate(estimates)
+    largest, smallest = jnp.max(estimates, axis=0), jnp.min(estimates, axis=0)
     return largest + jnp.minimum(largest - smallest, (SAFETY - 1) * largest)
 
 

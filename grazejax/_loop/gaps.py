@@ -235,8 +235,7 @@ def curvatures_at(gap, interp, thetas, sa, sb):
     # fraction is a large share of a run's program, and every transform of the run
     # (jacfwd, an orbit's Newton, its derivatives) traces and compiles each copy again;
     # the values are the same bits.
-    out = jax.vmap(second)(jnp.asarray(thetas, one.dtype))
-    return tuple(out[j] for j in range(len(thetas)))
+    return jax.vmap(second)(jnp.asarray(thetas, one.dtype))
 
 
 def step_floor(ctx: LoopContext, piece, t_hi, t_lo, args_, flight_scale, sa, sb, y1,
