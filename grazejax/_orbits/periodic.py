@@ -304,28 +304,57 @@ def _host_eigensystem(matrix):
 def eigvals_sorted(matrix) -> Array:
     """Eigenvalues of a real square matrix, complex, by modulus descending.
 
-    Runs NumPy's eigensolver through `jax.pure_callback`, so it works under `jit` and
-    `vmap` on every backend (JAX's own `eig` is CPU-only). Forward-mode derivative of a
-    simple eigenvalue: dλ_k = w_k dA v_k (v_k, w_k its right and left eigenvectors with
-    w_k v_k = 1); at a repeated eigenvalue of a defective matrix it is not finite, as the
-    eigenvalue is not differentiable there.
+    Works under `jit` and `vmap` on every backend (`_eigensystem`). Forward-mode
+    derivative of a simple eigenvalue: dλ_k = w_k dA v_k (v_k, w_k its right and left
+    eigenvectors with w_k v_k = 1); at a repeated eigenvalue of a defective matrix it is
+    not finite, as the eigenvalue is not differentiable there.
     """
-    matrix = jnp.asarray(matrix)
-    shape = jax.ShapeDtypeStruct(matrix.shape[:-1], jnp.complex128)
-    return jax.pure_callback(_host_eigvals, shape, matrix, vmap_method="sequential")
+    return _eigensystem(jnp.asarray(matrix), vectors=False)
 
 
 @eigvals_sorted.defjvp
 def _eigvals_sorted_jvp(primals, tangents):
     (matrix,), (matrix_dot,) = primals, tangents
-    matrix = jnp.asarray(matrix)
-    vectors = jax.ShapeDtypeStruct(matrix.shape, jnp.complex128)
-    shapes = (jax.ShapeDtypeStruct(matrix.shape[:-1], jnp.complex128), vectors, vectors)
-    w, right, left = jax.pure_callback(_host_eigensystem, shapes, matrix,
-                                       vmap_method="sequential")
+    w, right, left = _eigensystem(jnp.asarray(matrix), vectors=True)
     dA = jnp.asarray(matrix_dot).astype(jnp.complex128)
     w_dot = jnp.einsum("...ki,...ij,...jk->...k", left, dA, right)
     return w, w_dot
+
+
+def _eigensystem(matrix, vectors: bool):
+    """`w`, or `(w, V, W)` with `vectors` (as `_host_eigensystem`), of a traced matrix.
+
+    On the CPU, LAPACK's eigensolver compiled into the program (`jnp.linalg.eig`): a
+    program that calls back to the host is never written to JAX's persistent compilation
+    cache (its callbacks are baked into it), and every orbit, bifurcation and
+    continuation program holds this solve, so with a callback each of them was compiled
+    again in every process. JAX's `eig` is CPU-only: other backends run NumPy's on the
+    host (`jax.pure_callback`).
+    """
+    if jax.default_backend() != "cpu":
+        return _host_callback_eigensystem(matrix, vectors)
+    finite = jnp.all(jnp.isfinite(matrix), axis=(-2, -1))
+    # (LAPACK is not asked about a matrix that is not finite: NaN, as on the host)
+    safe = jnp.where(finite[..., None, None], matrix, 0.0)
+    w, v = jnp.linalg.eig(safe)
+    order = jnp.argsort(-jnp.abs(w), axis=-1, stable=True)
+    nan = jnp.asarray(jnp.nan + 0j, jnp.complex128)
+    w = jnp.where(finite[..., None], jnp.take_along_axis(w, order, axis=-1), nan)
+    if not vectors:
+        return w.astype(jnp.complex128)
+    v = jnp.take_along_axis(v, order[..., None, :], axis=-1).astype(jnp.complex128)
+    v = jnp.where(finite[..., None, None], v, nan)
+    # (a defective matrix's V is singular or nearly so: its derivative is not meaningful,
+    # as with NumPy's inverse on the host)
+    return w.astype(jnp.complex128), v, jnp.linalg.inv(v)
+
+
+def _host_callback_eigensystem(matrix, vectors: bool):
+    values = jax.ShapeDtypeStruct(matrix.shape[:-1], jnp.complex128)
+    if not vectors:
+        return jax.pure_callback(_host_eigvals, values, matrix, vmap_method="sequential")
+    shapes = (values, *(jax.ShapeDtypeStruct(matrix.shape, jnp.complex128),) * 2)
+    return jax.pure_callback(_host_eigensystem, shapes, matrix, vmap_method="sequential")
 
 
 def _snap(x, j, c):
