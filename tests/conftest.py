@@ -43,6 +43,10 @@ settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "derandomized"))
 # test run's own, in the temp folder, shared by both CI jobs and by the child processes the
 # tests start (notebook kernels, `grazejax bench`, multi-process sweeps): they read it from
 # the environment, this process from the config. Set JAX_COMPILATION_CACHE_DIR to move it.
+# JAX writes no program with a host callback there (the callbacks are baked into it): a
+# sweep's progress bar, `eqx.error_if` (`throw=True`; lineax's check of the linear solve
+# in an implicit derivative), a `jax.pure_callback`. Such a program compiles again in every
+# process and after every `jax.clear_caches()`: keep them out of grazejax's own programs.
 _TEST_CACHE = Path(tempfile.gettempdir()) / f"grazejax-tests-xla-cache-{os.getuid()}"
 os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", str(_TEST_CACHE))
 os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.5")

@@ -19,7 +19,7 @@ import grazejax as gj
 from grazejax import examples as ex
 from grazejax._orbits.contacts import grazing_branches, orbit_contacts
 from grazejax._orbits.floquet import floquet_multipliers, product_eigenvalues, saltation
-from grazejax._orbits.periodic import OrbitStatus, find_periodic_orbit
+from grazejax._orbits.periodic import OrbitStatus, eigvals_sorted, find_periodic_orbit
 
 from ..helpers import central_differences
 
@@ -349,6 +349,27 @@ def test_product_eigenvalues_keep_tiny_multipliers():
     np.testing.assert_allclose(stable, exact, rtol=1e-10)
     assert abs(naive[1] - 1e-10) > 1e-3 * 1e-10  # the formed product cannot resolve it
 
+
+
+def test_multipliers_are_compiled_in_on_the_cpu_without_a_host_callback():
+    """`eigvals_sorted` (the multipliers of every orbit, bifurcation and continuation
+    program) is LAPACK's eigensolver compiled into the program on the CPU: JAX writes no
+    program with a host callback to its persistent compilation cache, so with NumPy's
+    through a callback each of those programs compiled again in every process. The values
+    are NumPy's, sorted by modulus; the JVP is dλ = w dA v (central differences); a
+    matrix that is not finite gives NaN."""
+    m = np.array([[0.3, -1.2, 0.5], [0.8, 0.1, -0.4], [0.2, 0.9, -0.7]])
+    d = np.array([[0.1, 0.0, -0.3], [0.2, 0.5, 0.1], [-0.4, 0.3, 0.2]])
+    jvp = jax.jit(lambda a, da: jax.jvp(eigvals_sorted, (a,), (da,)))
+    assert "callback" not in jvp.lower(m, d).as_text()
+    values, slopes = jvp(m, d)
+    host = np.linalg.eigvals(m)
+    np.testing.assert_allclose(values, host[np.argsort(-np.abs(host), kind="stable")],
+                               rtol=1e-14)
+    h = 1e-6
+    central = (np.asarray(eigvals_sorted(m + h * d)) - np.asarray(eigvals_sorted(m - h * d)))
+    np.testing.assert_allclose(slopes, central / (2 * h), rtol=1e-7, atol=1e-9)
+    assert np.all(np.isnan(np.asarray(eigvals_sorted(np.full((2, 2), np.nan)))))
 
 # --------------------------------------------------------------------------------------
 # The grazing cycle of ex1dof: its two branches (A4), (A5)
