@@ -32,7 +32,6 @@ step, each sample near an inflection point) remains unseen, as it would by any m
 that samples the step.
 """
 
-
 import jax.numpy as jnp
 import numpy as np
 

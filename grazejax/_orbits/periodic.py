@@ -336,17 +336,17 @@ def _eigensystem(matrix, vectors: bool):
     finite = jnp.all(jnp.isfinite(matrix), axis=(-2, -1))
     # (LAPACK is not asked about a matrix that is not finite: NaN, as on the host)
     safe = jnp.where(finite[..., None, None], matrix, 0.0)
-    w, v = jnp.linalg.eig(safe)
+    w, v = (a.astype(jnp.complex128) for a in jnp.linalg.eig(safe))
     order = jnp.argsort(-jnp.abs(w), axis=-1, stable=True)
     nan = jnp.asarray(jnp.nan + 0j, jnp.complex128)
     w = jnp.where(finite[..., None], jnp.take_along_axis(w, order, axis=-1), nan)
     if not vectors:
-        return w.astype(jnp.complex128)
-    v = jnp.take_along_axis(v, order[..., None, :], axis=-1).astype(jnp.complex128)
+        return w
+    v = jnp.take_along_axis(v, order[..., None, :], axis=-1)
     v = jnp.where(finite[..., None, None], v, nan)
     # (a defective matrix's V is singular or nearly so: its derivative is not meaningful,
     # as with NumPy's inverse on the host)
-    return w.astype(jnp.complex128), v, jnp.linalg.inv(v)
+    return w, v, jnp.linalg.inv(v)
 
 
 def _host_callback_eigensystem(matrix, vectors: bool):

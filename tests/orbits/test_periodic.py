@@ -350,7 +350,6 @@ def test_product_eigenvalues_keep_tiny_multipliers():
     assert abs(naive[1] - 1e-10) > 1e-3 * 1e-10  # the formed product cannot resolve it
 
 
-
 def test_multipliers_are_compiled_in_on_the_cpu_without_a_host_callback():
     """`eigvals_sorted` (the multipliers of every orbit, bifurcation and continuation
     program) is LAPACK's eigensolver compiled into the program on the CPU: JAX writes no
@@ -370,6 +369,7 @@ def test_multipliers_are_compiled_in_on_the_cpu_without_a_host_callback():
     central = (np.asarray(eigvals_sorted(m + h * d)) - np.asarray(eigvals_sorted(m - h * d)))
     np.testing.assert_allclose(slopes, central / (2 * h), rtol=1e-7, atol=1e-9)
     assert np.all(np.isnan(np.asarray(eigvals_sorted(np.full((2, 2), np.nan)))))
+
 
 # --------------------------------------------------------------------------------------
 # The grazing cycle of ex1dof: its two branches (A4), (A5)
