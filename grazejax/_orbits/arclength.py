@@ -31,7 +31,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._status import ContinuationStatus
-from .period_map import SolverSettings, atol_for, jacobian_in_one_pass, orbit_scale, solver_name
+from .period_map import SolverSettings, atol_for, newton_root, orbit_scale, solver_name
 
 
 class CurvePoint(NamedTuple):
@@ -228,13 +228,10 @@ def eigvals_descending(matrix) -> np.ndarray:
 
 
 def bordered_newton(rows_of, root_finder, max_newton_steps, Y_pred, tangent):
-    """Newton (`optx.root_find`) on [rows(Y); tangent·(Y − Y_pred)] = 0: the
+    """Newton (`newton_root`) on [rows(Y); tangent·(Y − Y_pred)] = 0: the
     pseudo-arclength corrector. Returns (Y, converged, number of steps)."""
-    import optimistix as optx
 
     def bordered(Y, _):
         return jnp.concatenate([rows_of(Y), jnp.dot(tangent, Y - Y_pred)[None]])
 
-    solution = optx.root_find(jacobian_in_one_pass(bordered), root_finder, Y_pred, None,
-                              max_steps=max_newton_steps, throw=False)
-    return solution.value, solution.result == optx.RESULTS.successful, solution.stats["num_steps"]
+    return newton_root(bordered, root_finder, Y_pred, None, max_newton_steps)

@@ -33,7 +33,6 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optimistix as optx
 from jaxtyping import Array, Complex, Float, Int
 
 from .._adjoint import require_forward_mode
@@ -44,8 +43,8 @@ from .forced_period import PERIOD_OF_FIX, require_period_fixed_in
 from .period_map import (
     ATOL_PER_RTOL,
     PeriodMap,
-    jacobian_in_one_pass,
     newton_for,
+    newton_root,
     orbit_kernel,
     orbit_scale,
     period_map_jacobian,
@@ -245,15 +244,12 @@ def _solve(system: DefiningSystem, root_finder, max_newton_steps: int, y0, param
 
 
 def newton(residual, root_finder, y0, params, max_newton_steps):
-    """`optx.root_find` of `residual(y, params)` from y0, differentiable in `params` by
+    """Newton (`newton_root`) on `residual(y, params)` from y0, differentiable in `params` by
     the implicit function theorem: `(y, converged, finite, num_steps)`, y0 where the
     iterate is not finite."""
-    solution = optx.root_find(jacobian_in_one_pass(residual), root_finder, y0, params,
-                              max_steps=max_newton_steps, throw=False)
-    y = solution.value
-    converged = solution.result == optx.RESULTS.successful
+    y, converged, num_steps = newton_root(residual, root_finder, y0, params, max_newton_steps)
     finite = jnp.all(jnp.isfinite(jax.lax.stop_gradient(y)))
-    return jnp.where(finite, y, y0), converged, finite, solution.stats["num_steps"]
+    return jnp.where(finite, y, y0), converged, finite, num_steps
 
 
 def _assess(system: DefiningSystem, x, t0, T, mu, nu, converged, finite, num_steps):

@@ -1,5 +1,6 @@
 """The period map, the floor of the orbit package: one flight of `simulate` over a
-period, its linearization, sampling, the (A5) verdict and the tolerance conventions.
+period, its linearization, sampling, the (A5) verdict, the tolerance conventions and the
+Newton solve (`newton_root`) with its implicit derivative.
 
 `grazejax.find_periodic_orbit`, `grazejax.continue_orbit`, the bifurcation systems
 and `grazejax.continue_grazing` all solve for fixed points of this map with the same
@@ -114,6 +115,58 @@ def jacobian_in_one_pass(fn):
         return residual(y, dynamic)
 
     return call
+
+
+def newton_root(residual, root_finder, y0, params, max_newton_steps):
+    """`optx.root_find` of `residual(y, params) = 0` from y0 (`throw=False`):
+    `(y, converged, num_steps)`, differentiable in `params` and in every array `residual`
+    closes over by the implicit function theorem, ẏ = −(∂r/∂y)⁻¹ ṙ at the root.
+
+    Why not optimistix's implicit adjoint: it solves with `lineax.linear_solve`, which checks
+    the solve by `eqx.error_if`, a host callback, and JAX writes no program holding a host
+    callback to its persistent compilation cache: each derivative of an orbit, a
+    bifurcation or a grazing point compiled again in every process. Here the solve is
+    `jnp.linalg.solve` (LU, as lineax's for a square system): a singular ∂r/∂y gives
+    non-finite derivatives, never an exception that would end a whole vmapped batch. The
+    guess y0 has no derivative (the root does not depend on it); nor have `converged` and
+    `num_steps`.
+    """
+    import optimistix as optx
+
+    # Every array the solve reads is an explicit input of the custom_jvp function: JAX
+    # traces the rule when the enclosing program is differentiated, after that program's
+    # trace has ended, so a closed-over tracer would have leaked out of it by then.
+    converted = eqx.filter_closure_convert(residual, y0, params)
+    dynamic, static = eqx.partition((converted, params, root_finder), eqx.is_array)
+
+    def value(y, dynamic):
+        converted, params, _ = eqx.combine(dynamic, static)
+        return converted(y, params)
+
+    def solve(dynamic, y0):
+        converted, params, root_finder = eqx.combine(dynamic, static)
+        solution = optx.root_find(jacobian_in_one_pass(converted), root_finder, y0, params,
+                                  max_steps=max_newton_steps, throw=False)
+        return (solution.value, solution.result == optx.RESULTS.successful,
+                solution.stats["num_steps"])
+
+    @jax.custom_jvp
+    def root(dynamic, y0):
+        return solve(dynamic, y0)
+
+    @root.defjvp
+    def root_jvp(primals, tangents):
+        dynamic, y0 = primals
+        dynamic_dot, _ = tangents
+        dynamic = jax.tree.map(jnp.asarray, dynamic)  # (JAX passes a Python float as it is)
+        y, converged, num_steps = solve(dynamic, y0)
+        jac = jax.jacfwd(value)(y, dynamic)
+        _, value_dot = jax.jvp(lambda d: value(y, d), (dynamic,), (dynamic_dot,))
+        y_dot = -jnp.linalg.solve(jac, value_dot)
+        no_tangent = [np.zeros(jnp.shape(v), jax.dtypes.float0) for v in (converged, num_steps)]
+        return (y, converged, num_steps), (y_dot, *no_tangent)
+
+    return root(dynamic, y0)
 
 
 def newton_for(newton_tol, scale):

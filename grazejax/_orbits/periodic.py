@@ -25,7 +25,7 @@ time: P(x0, T) = x(θ_k+) + (t0 + T − θ_k)·f(θ_k, x(θ_k+)), which is exact
 solved: with an impact at the end, its last factor is that impact's saltation matrix
 S = DJ + (f⁺ − DJ f⁻)∇Φᵀ/(∇Φ·f⁻), i.e. U = S_k Φ(θ_k, θ_{k−1}) ⋯ S_1 Φ(θ_1, t0).
 
-**Differentiation.** Newton runs in `optx.root_find`, whose implicit adjoint gives
+**Differentiation.** Newton runs in `optx.root_find`, and `period_map.newton_root` gives
 derivatives of the orbit (x0, period) with respect to `args` by the implicit function
 theorem; `jax.jacfwd` works, and `jax.grad` with `adjoint=diffrax.DirectAdjoint()` (the
 residual's derivative in `args` then runs backward through `simulate`). Diagnostics
@@ -62,9 +62,9 @@ from .period_map import (
     PeriodMap,
     SolverSettings,
     a5_holds,
-    jacobian_in_one_pass,
     linearize,
     newton_for,
+    newton_root,
     newton_tolerances,
     orbit_kernel,
     orbit_scale,
@@ -371,7 +371,7 @@ def _free_columns(n, j):
 @orbit_kernel
 def _newton(pmap: PeriodMap, fixed_period: bool, root_finder, max_newton_steps: int, y0, t0,
             T_fixed, args, j, c):
-    """Newton (`optx.root_find`) on the Poincaré criterion; differentiable in `args`."""
+    """Newton (`newton_root`) on the Poincaré criterion; differentiable in `args`."""
     n = y0.shape[0] - (0 if fixed_period else 1)
     e_j = jax.nn.one_hot(j, n, dtype=y0.dtype)
 
@@ -389,9 +389,7 @@ def _newton(pmap: PeriodMap, fixed_period: bool, root_finder, max_newton_steps: 
             r = jnp.concatenate([x_end - x, (jnp.dot(x, e_j) - c)[None]])
             return jnp.where(ok, r, jnp.nan)
 
-    solution = optx.root_find(jacobian_in_one_pass(residual), root_finder, y0, args,
-                              max_steps=max_newton_steps, throw=False)
-    return solution.value, solution.result == optx.RESULTS.successful, solution.stats["num_steps"]
+    return newton_root(residual, root_finder, y0, args, max_newton_steps)
 
 
 def _phase_condition(pmap: PeriodMap, x_guess, t0, T_guess, args, fix, fixed_period):

@@ -371,6 +371,38 @@ def test_multipliers_are_compiled_in_on_the_cpu_without_a_host_callback():
     assert np.all(np.isnan(np.asarray(eigvals_sorted(np.full((2, 2), np.nan)))))
 
 
+def test_newton_roots_are_differentiated_without_a_host_callback():
+    """`newton_root`, the Newton solve of every orbit, bifurcation and continuation
+    program, differentiates its root by the implicit function theorem with a linear solve
+    compiled into the program (optimistix's implicit adjoint checks lineax's solve by a
+    host callback, which kept each derivative of an orbit out of the persistent cache).
+    Closed form: r(y; a, c) = (y₀² − a, y₁ − c·y₀) has the root (√a, c√a); `c` is closed
+    over, as the orbit residuals close over the phase condition."""
+    from grazejax._orbits.period_map import newton_for, newton_root
+
+    def root(a, c):
+        def residual(y, args):
+            return jnp.stack([y[0] ** 2 - args["a"], y[1] - c * y[0]])
+
+        guess = jnp.array([1.0, 1.0])
+        y, converged, _ = newton_root(residual, newton_for(1e-13, 1.0), guess, {"a": a}, 60)
+        return y, converged
+
+    jacobian = jax.jit(jax.jacfwd(lambda a, c: root(a, c)[0], argnums=(0, 1)))
+    assert "callback" not in jacobian.lower(2.0, 3.0).as_text()
+    a, c = 2.0, 3.0
+    y, converged = root(a, c)
+    assert bool(converged)
+    np.testing.assert_allclose(y, [math.sqrt(a), c * math.sqrt(a)], rtol=1e-14)
+    by_a, by_c = jacobian(a, c)
+    np.testing.assert_allclose(by_a, [0.5 / math.sqrt(a), 0.5 * c / math.sqrt(a)], rtol=1e-13)
+    np.testing.assert_allclose(by_c, [0.0, math.sqrt(a)], rtol=1e-13, atol=1e-15)
+    gradient = jax.grad(lambda a: root(a, c)[0].sum())(a)
+    np.testing.assert_allclose(gradient, (1 + c) * 0.5 / math.sqrt(a), rtol=1e-13)
+    lanes = jax.vmap(jax.jacfwd(lambda a: root(a, c)[0]))(jnp.array([0.5, 2.0, 4.5]))
+    np.testing.assert_allclose(lanes[:, 0], 0.5 / np.sqrt([0.5, 2.0, 4.5]), rtol=1e-13)
+
+
 # --------------------------------------------------------------------------------------
 # The grazing cycle of ex1dof: its two branches (A4), (A5)
 # --------------------------------------------------------------------------------------
