@@ -167,18 +167,19 @@ def test_jump_into_another_impenetrable_surface_is_reported(floor_first):
     """A jump on one surface (a penetrable wall at x = 1 that moves the particle back by
     0.5) whose result is inside, or on and moving into, an impenetrable floor y = 0: the
     run ran on under the floor with SUCCESS (x_final y = -0.5). Now BAD_JUMP, whatever the
-    surfaces' order; onto the floor moving out (or above it) runs on."""
+    surfaces' order; onto the floor moving out (or above it) runs on. The wall's jump
+    reads its offsets (dy, dv) from `args`: one program per order runs all four."""
     field_2d = lambda t, x, a: jnp.stack([x[2], x[3], 0.0 * x[2], 0.0 * x[3]])  # noqa: E731
     floor = gj.Surface(phi=lambda t, x, a: x[1], jump=lambda t, x, a: x.at[3].set(-x[3]),
                        impenetrable=True)
+    wall = gj.Surface(phi=lambda t, x, a: 1.0 - x[0],
+                      jump=lambda t, x, a: jnp.stack(
+                          [x[0] - 0.5, x[1] + a["dy"], -x[2], x[3] + a["dv"]]))
+    scene = gj.Scene(field_2d, [floor, wall] if floor_first else [wall, floor])
     expected = {(-1.0, 0.0): "BAD_JUMP", (-0.5, -1.0): "BAD_JUMP", (-0.5, 1.0): "SUCCESS",
                 (0.0, 0.0): "SUCCESS"}
     for (dy, dv), status in expected.items():
-        wall = gj.Surface(phi=lambda t, x, a: 1.0 - x[0],
-                          jump=lambda t, x, a, dy=dy, dv=dv: jnp.stack(
-                              [x[0] - 0.5, x[1] + dy, -x[2], x[3] + dv]))
-        scene = gj.Scene(field_2d, [floor, wall] if floor_first else [wall, floor])
-        sol = gj.simulate(scene, jnp.array([0.5, 0.5, 1.0, 0.0]), 0.0, 2.0)
+        sol = gj.simulate(scene, jnp.array([0.5, 0.5, 1.0, 0.0]), 0.0, 2.0, {"dy": dy, "dv": dv})
         assert gj.Status(int(sol.status)).name == status, (dy, dv)
         assert int(sol.num_impacts) == 1
         if status == "SUCCESS":
