@@ -83,15 +83,16 @@ def jacobian_in_one_pass(fn):
     `_while_partial_eval`). Each Newton program then held the impact loop twice — the
     primal loop and its JVP loop — in its compiled code and in every iteration. Here the
     JVP in `y` alone (Newton's case) is `J ẏ` with `(fn, J)` from one `jax.jacfwd` pass:
-    the loop is traced, compiled and run once per iteration. Tangents in `args` (implicit
-    differentiation of the solution) take the plain JVP, as before.
+    the loop is traced, compiled and run once per iteration. Tangents in `args` take the
+    plain JVP, so that the rule is right for any tangent (`newton_root`, its one caller,
+    differentiates the solution by its own rule: no tangent in `args` reaches Newton).
     """
     from jax.custom_derivatives import SymbolicZero, zero_from_primal
 
     def call(y, args):
-        # The rule must not close over tracers (optimistix transforms the traced residual
-        # again for its implicit derivative, after this trace has ended): every array the
-        # residual reads, closed over or in `args`, becomes an explicit input.
+        # The rule must not close over tracers (JAX may trace it after the trace that
+        # built it has ended): every array the residual reads, closed over or in `args`,
+        # becomes an explicit input.
         converted = eqx.filter_closure_convert(fn, y, args)
         dynamic, static = eqx.partition((converted, args), eqx.is_array)
 
